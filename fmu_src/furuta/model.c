@@ -1,0 +1,60 @@
+/* Rotary inverted (Furuta) pendulum driven by a DC motor: Solis & Thomas (2021), Sec. III,
+ * with the readings of FINDINGS.md Sec. 1: one effective gear ratio N in motor torque,
+ * back-EMF and reflected rotor inertia, and the centripetal matrix M2 with lp^2.
+ *
+ * State x = [theta0, dtheta0, theta1, dtheta1, i]; theta1 = 0 is the upright position.
+ *   M1(theta1) q'' = T - M2(theta1, q') q' - M3(theta1)
+ *   L_a di/dt = V - R_a i - M_f N dtheta0
+ * with T = [M_f N i + tau0, tau1]. */
+#include <math.h>
+#include <stdio.h>
+
+#include "model_api.h"
+
+void model_derivatives(const ModelValues *values, const double *x, double *dx) {
+    const double dtheta0 = x[1], theta1 = x[2], dtheta1 = x[3], current = x[4];
+    const double s = sin(theta1), c = cos(theta1), s2 = 2.0 * s * c;
+    const double mp = R(m_p), lp = R(l_p), r = R(r), N = R(N);
+    const double J0 = R(I_a) + r * r * (mp + R(m_c)) + N * N * R(I_m);
+    const double J1 = R(I_p) + mp * lp * lp;
+    const double coupling = mp * r * lp;
+    double V = R(V);
+    double m11, m12, m22, rhs0, rhs1, det;
+
+    if (R(V_max) > 0.0) V = fmax(-R(V_max), fmin(R(V_max), V));
+
+    m11 = J0 + mp * lp * lp * s * s;
+    m12 = -coupling * c;
+    m22 = J1;
+    rhs0 = R(M_f) * N * current + R(tau0)
+         - (mp * lp * lp * dtheta1 * s2 + R(C0)) * dtheta0 - coupling * dtheta1 * s * dtheta1;
+    rhs1 = R(tau1) + 0.5 * mp * lp * lp * dtheta0 * s2 * dtheta0 - R(C1) * dtheta1
+         + mp * R(g) * lp * s;
+    det = m11 * m22 - m12 * m12;
+
+    dx[0] = dtheta0;
+    dx[1] = (m22 * rhs0 - m12 * rhs1) / det;
+    dx[2] = dtheta1;
+    dx[3] = (m11 * rhs1 - m12 * rhs0) / det;
+    dx[4] = (V - R(R_a) * current - R(M_f) * N * dtheta0) / R(L_a);
+}
+
+void model_outputs(ModelValues *values) { (void)values; }
+
+int model_check(const ModelValues *values, char *message, size_t size) {
+    /* the mass matrix is positive definite for every theta1 exactly when J0 J1 > (mp r lp)^2 */
+    const double J0 = R(I_a) + R(r) * R(r) * (R(m_p) + R(m_c)) + R(N) * R(N) * R(I_m);
+    const double J1 = R(I_p) + R(m_p) * R(l_p) * R(l_p);
+    const double coupling = R(m_p) * R(r) * R(l_p);
+    if (!(J0 * J1 > coupling * coupling)) {
+        snprintf(message, size, "the mass matrix is singular: J0*J1 = %g <= (m_p*r*l_p)^2 = %g",
+                 J0 * J1, coupling * coupling);
+        return 1;
+    }
+    if (R(C0) < 0.0 || R(C1) < 0.0 || R(R_a) < 0.0 || R(V_max) < 0.0) {
+        snprintf(message, size, "C0 = %g, C1 = %g, R_a = %g and V_max = %g must be >= 0", R(C0),
+                 R(C1), R(R_a), R(V_max));
+        return 1;
+    }
+    return 0;
+}

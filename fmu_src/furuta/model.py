@@ -1,0 +1,59 @@
+"""Declaration of the Furuta pendulum FMU: variables here, equations in model.c.
+
+The start values of the physical parameters come from the plant's default parameter set
+(``scenarios/plants/paper-calibrated.yaml``), so each number lives in one place.
+"""
+
+from furuta_cosim.fmu.declaration import Integer, Model, Real
+
+DEFAULT_PARAMETER_SET = "paper-calibrated"
+
+# name, unit, description, must be > 0
+PHYSICAL_PARAMETERS = [
+    ("m_p", "kg", "pendulum mass", True),
+    ("m_c", "kg", "counterweight mass", True),
+    ("I_p", "kg.m2", "pendulum moment of inertia", True),
+    ("I_a", "kg.m2", "arm moment of inertia", True),
+    ("r", "m", "arm radius", True),
+    ("l_p", "m", "distance from the pendulum axis to its centre of mass", True),
+    ("h", "m", "height of the arm's centre of mass (enters only a constant potential)", True),
+    ("C0", "N.m.s/rad", "arm viscous friction", False),
+    ("C1", "N.m.s/rad", "pendulum viscous friction", False),
+    ("R_a", "Ohm", "armature resistance", False),
+    ("L_a", "H", "armature inductance", True),
+    ("I_m", "kg.m2", "motor rotor inertia", True),
+    ("M_f", "N.m/A", "motor torque constant (mutual inductance)", True),
+    ("g", "m/s2", "gravitational acceleration", True),
+    ("N", "", "effective gear ratio in torque, back-EMF and reflected inertia", True),
+]
+
+STATES = [
+    ("theta0", "rad", "arm angle"),
+    ("dtheta0", "rad/s", "arm angular velocity"),
+    ("theta1", "rad", "pendulum angle, 0 = upright"),
+    ("dtheta1", "rad/s", "pendulum angular velocity"),
+    ("i", "A", "armature current"),
+]
+
+
+def declare(parameters):
+    """Return the declaration; ``parameters`` maps each physical parameter to its start."""
+    model = Model("Furuta", "Rotary inverted (Furuta) pendulum with DC motor, "
+                  "Solis & Thomas (2021), readings of FINDINGS.md")
+    model.register_variable(Real("V", "input", start=0.0, unit="V",
+                                 description="armature voltage"))
+    model.register_variable(Real("tau0", "input", start=0.0, unit="N.m",
+                                 description="disturbance torque on the arm"))
+    model.register_variable(Real("tau1", "input", start=0.0, unit="N.m",
+                                 description="disturbance torque on the pendulum"))
+    for name, unit, description in STATES:
+        model.register_state(name, 0.0, unit, description)
+    for name, unit, description, positive in PHYSICAL_PARAMETERS:
+        model.register_variable(Real(name, "parameter", start=float(parameters[name]), unit=unit,
+                                     description=description, positive=positive))
+    model.register_variable(Real("V_max", "parameter", start=float(parameters["V_max"]),
+                                 unit="V", description="voltage limit |V| <= V_max; 0 = no limit"))
+    model.register_variable(Integer("n_substeps", int(parameters["n_substeps"]), minimum=1,
+                                    description="RK4 substeps per communication step"))
+    model.substeps = "n_substeps"
+    return model

@@ -1,0 +1,158 @@
+"""Strict reading of the project's YAML files.
+
+Every problem is collected with its place (``file: key.path: what was expected``) and all
+are raised at once as one :class:`~furuta_cosim.errors.ConfigError`; unknown keys are
+problems, never silently skipped.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from furuta_cosim.errors import ConfigError
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Parse a YAML file safely; a missing file or a syntax error becomes a ConfigError."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError([f"{path}: file not found"]) from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
+        raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark else "?"
+        reason = getattr(error, "problem", None) or str(error)
+        raise ConfigError([f"{path}: {where}: invalid YAML ({reason})"]) from None
+
+
+class Checker:
+    """Collects the problems of one file; each method returns None for a bad value."""
+
+    def __init__(self, source: str | Path):
+        self.source = str(source)
+        self.problems: list[str] = []
+
+    def fail(self, key: str, message: str) -> None:
+        self.problems.append(f"{self.source}: {key}: {message}" if key else f"{self.source}: {message}")
+
+    def done(self) -> None:
+        if self.problems:
+            raise ConfigError(self.problems)
+
+    def mapping(self, value: Any, key: str, required: tuple = (), optional: tuple = ()) -> dict | None:
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a mapping, got {_kind(value)}")
+            return None
+        allowed = set(required) | set(optional)
+        for name in value:
+            if name not in allowed:
+                self.fail(_join(key, name), f"unknown key (expected one of: {', '.join(sorted(allowed))})")
+        for name in required:
+            if name not in value:
+                self.fail(_join(key, name), "missing")
+        return value
+
+    def number(self, value: Any, key: str, *, positive: bool = False, minimum: float | None = None,
+               integer: bool = False) -> float | None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(key, f"expected a number, got {_kind(value)}")
+            return None
+        if not math.isfinite(value):
+            self.fail(key, f"must be finite, got {value}")
+            return None
+        if integer and value != int(value):
+            self.fail(key, f"expected a whole number, got {value}")
+            return None
+        if positive and not value > 0:
+            self.fail(key, f"must be > 0, got {value}")
+            return None
+        if minimum is not None and value < minimum:
+            self.fail(key, f"must be >= {minimum}, got {value}")
+            return None
+        return int(value) if integer else float(value)
+
+    def string(self, value: Any, key: str, choices: tuple | None = None) -> str | None:
+        if not isinstance(value, str) or not value:
+            self.fail(key, f"expected a non-empty string, got {_kind(value)}")
+            return None
+        if choices and value not in choices:
+            self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
+            return None
+        return value
+
+    def names(self, value: Any, key: str, length: int | None = None) -> list[str] | None:
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            self.fail(key, f"expected a list of names, got {_kind(value)}")
+            return None
+        if length is not None and len(value) != length:
+            self.fail(key, f"expected {length} names, got {len(value)}")
+            return None
+        if len(set(value)) != len(value):
+            self.fail(key, "names must be unique")
+            return None
+        return list(value)
+
+    def vector(self, value: Any, key: str, length: int | None = None) -> list[float] | None:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [value]
+        if not isinstance(value, list):
+            self.fail(key, f"expected a list of numbers, got {_kind(value)}")
+            return None
+        if length is not None and len(value) != length:
+            self.fail(key, f"expected {length} values, got {len(value)}")
+            return None
+        numbers = [self.number(v, f"{key}[{k}]") for k, v in enumerate(value)]
+        return None if any(v is None for v in numbers) else numbers
+
+    def matrix(self, value: Any, key: str, rows: int | None = None,
+               cols: int | None = None) -> list[list[float]] | None:
+        """A list of rows; a scalar is a 1x1 matrix, a flat list one row."""
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [[value]]
+        if isinstance(value, list) and value and not any(isinstance(v, list) for v in value):
+            value = [value]
+        if not isinstance(value, list) or not value or not all(isinstance(r, list) for r in value):
+            self.fail(key, f"expected a matrix (a list of rows), got {_kind(value)}")
+            return None
+        widths = {len(r) for r in value}
+        if len(widths) != 1:
+            self.fail(key, f"rows have different lengths {sorted(widths)}")
+            return None
+        if rows is not None and len(value) != rows:
+            self.fail(key, f"expected {rows} rows, got {len(value)}")
+            return None
+        if cols is not None and len(value[0]) != cols:
+            self.fail(key, f"expected {cols} columns, got {len(value[0])}")
+            return None
+        numbers = [[self.number(v, f"{key}[{i}][{j}]") for j, v in enumerate(r)]
+                   for i, r in enumerate(value)]
+        return None if any(v is None for r in numbers for v in r) else numbers
+
+
+def _join(key: str, name: Any) -> str:
+    return f"{key}.{name}" if key else str(name)
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "nothing"
+    if isinstance(value, bool):
+        return f"a boolean ({value})"
+    if isinstance(value, (int, float)):
+        return f"a number ({value})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    if isinstance(value, dict):
+        return "a mapping"
+    return type(value).__name__

@@ -1,0 +1,140 @@
+"""Plant variables declared in Python, pythonfmu style; equations stay in C.
+
+A plant's ``fmu_src/<model>/model.py`` defines ``declare(options)`` that returns a
+:class:`Model` whose variables were registered in order. The order gives the value
+references; the exporter turns the declaration into ``modelDescription.xml`` and the C
+header ``model_vars.h``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+CAUSALITIES = ("parameter", "input", "output", "local")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?$|^der\([A-Za-z_][A-Za-z0-9_]*\)$")
+
+
+class DeclarationError(ValueError):
+    """A plant declaration that cannot become an FMU."""
+
+
+@dataclass(frozen=True)
+class Real:
+    """A Real variable.
+
+    Parameters
+    ----------
+    name : str
+        FMI name; ``A[1,2]`` style structured names are allowed.
+    causality : {"parameter", "input", "output", "local"}
+    start : float, optional
+        Required for parameters and inputs.
+    unit, description : str
+    positive : bool
+        The FMU rejects values <= 0 (masses, lengths, inertias).
+    """
+
+    name: str
+    causality: str
+    start: float | None = None
+    unit: str = ""
+    description: str = ""
+    positive: bool = False
+
+
+@dataclass(frozen=True)
+class Integer:
+    """An Integer parameter (for example the RK4 substep count)."""
+
+    name: str
+    start: int
+    minimum: int = -(2**31)
+    description: str = ""
+    causality: str = "parameter"
+
+
+@dataclass(frozen=True)
+class State:
+    """A state: an output ``name``, its start parameter ``name_start`` and ``der(name)``."""
+
+    name: str
+    start_parameter: str
+    derivative: str | None
+
+
+@dataclass
+class Model:
+    """A plant declaration: identifier, time domain and ordered variables."""
+
+    identifier: str
+    description: str
+    discrete: bool = False
+    reals: list[Real] = field(default_factory=list)
+    integers: list[Integer] = field(default_factory=list)
+    states: list[State] = field(default_factory=list)
+    substeps: str | None = None
+    sample_period: str | None = None
+    constants: dict[str, int] = field(default_factory=dict)
+
+    def register_variable(self, variable: Real | Integer) -> None:
+        """Add a variable; its value reference is its position of registration."""
+        if not _NAME.match(variable.name):
+            raise DeclarationError(f"{self.identifier}: invalid variable name {variable.name!r}")
+        if variable.name in self.names():
+            raise DeclarationError(f"{self.identifier}: variable {variable.name!r} declared twice")
+        if variable.causality not in CAUSALITIES:
+            raise DeclarationError(
+                f"{self.identifier}.{variable.name}: causality must be one of {CAUSALITIES}")
+        if isinstance(variable, Integer):
+            self.integers.append(variable)
+            return
+        if variable.causality in ("parameter", "input"):
+            if variable.start is None or not math.isfinite(variable.start):
+                raise DeclarationError(
+                    f"{self.identifier}.{variable.name}: a {variable.causality} needs a finite start")
+            if variable.positive and variable.start <= 0:
+                raise DeclarationError(
+                    f"{self.identifier}.{variable.name}: start {variable.start} must be > 0")
+        self.reals.append(variable)
+
+    def register_state(self, name: str, start: float, unit: str, description: str) -> None:
+        """Add a state: an output, the parameter ``<name>_start`` and, if continuous, ``der(<name>)``."""
+        self.register_variable(Real(name, "output", unit=unit, description=description))
+        start_name = f"{name}_start"
+        self.register_variable(Real(start_name, "parameter", start=start, unit=unit,
+                                    description=f"initial value of {name}"))
+        derivative = None
+        if not self.discrete:
+            derivative = f"der({name})"
+            rate_unit = f"{unit}/s" if unit else "1/s"
+            self.register_variable(Real(derivative, "local", unit=rate_unit,
+                                        description=f"time derivative of {name}"))
+        self.states.append(State(name, start_name, derivative))
+
+    def names(self) -> list[str]:
+        return [v.name for v in self.reals] + [v.name for v in self.integers]
+
+    def value_reference(self, name: str) -> int:
+        """Reals first, then integers: one value reference space for all types."""
+        for k, variable in enumerate(self.reals):
+            if variable.name == name:
+                return k
+        for k, variable in enumerate(self.integers):
+            if variable.name == name:
+                return len(self.reals) + k
+        raise KeyError(name)
+
+    def check(self) -> None:
+        """Everything the glue relies on is declared."""
+        if not self.states:
+            raise DeclarationError(f"{self.identifier}: declares no state")
+        if self.discrete:
+            if self.sample_period is None:
+                raise DeclarationError(f"{self.identifier}: a discrete model needs sample_period")
+        elif self.substeps is None:
+            raise DeclarationError(f"{self.identifier}: a continuous model needs substeps")
+        for name in (self.substeps, self.sample_period):
+            if name is not None and name not in self.names():
+                raise DeclarationError(f"{self.identifier}: {name!r} is not declared")

@@ -1,0 +1,140 @@
+"""Plant files (``scenarios/plants/*.yaml``): parameter sets of a declared model, or linear
+state-space plants that the exporter turns into FMUs of their own."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+from furuta_cosim import paths
+from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class LinearSpec:
+    """A linear plant; ``discrete`` plants advance once per ``period``."""
+
+    identifier: str
+    description: str
+    discrete: bool
+    period: float
+    substeps: int
+    A: list
+    B: list
+    C: list
+    D: list
+    inputs: list
+    outputs: list
+    states: list
+    x0: list
+
+
+@dataclass(frozen=True)
+class PlantSet:
+    """One plant file: ``model`` names the folder in ``fmu_src/``."""
+
+    name: str
+    path: Path
+    model: str
+    description: str
+    parameters: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    linear: LinearSpec | None = None
+
+
+def plant_path(name: str | Path) -> Path:
+    """A file path, a plant name in ``scenarios/plants``, or a model's default set."""
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return path
+    model_dir = paths.fmu_sources() / str(name)
+    if (model_dir / "model.py").is_file():
+        default = _default_set(model_dir / "model.py")
+        if default:
+            return paths.scenarios() / "plants" / f"{default}.yaml"
+    return paths.scenarios() / "plants" / f"{name}.yaml"
+
+
+def _default_set(model_py: Path) -> str | None:
+    match = re.search(r'^DEFAULT_PARAMETER_SET\s*=\s*"([^"]+)"', model_py.read_text(), re.M)
+    return match.group(1) if match else None
+
+
+def load_plant(name: str | Path = "furuta") -> PlantSet:
+    """Read and validate a plant file; raises ConfigError listing every problem."""
+    return _load(plant_path(name), seen=())
+
+
+def _load(path: Path, seen: tuple) -> PlantSet:
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", required=("model",),
+                        optional=("description", "extends", "parameters", "identifier", "time",
+                                  "period", "substeps", "A", "B", "C", "D", "inputs", "outputs",
+                                  "states", "x0"))
+    check.done()
+    model = check.string(top["model"], "model")
+    check.done()
+    if not (paths.fmu_sources() / model / "model.py").is_file():
+        known = sorted(p.name for p in paths.fmu_sources().iterdir() if (p / "model.py").is_file())
+        raise ConfigError([f"{path}: model: no plant {model!r} in fmu_src (known: {', '.join(known)})"])
+    description = top.get("description", "")
+    if model == "linear":
+        return PlantSet(path.stem, path, model, str(description), linear=_linear(top, path, check))
+    parameters = {}
+    if "extends" in top:
+        base_name = check.string(top["extends"], "extends")
+        check.done()
+        base_path = plant_path(base_name) if not Path(base_name).is_absolute() else Path(base_name)
+        if base_path.resolve() in seen:
+            raise ConfigError([f"{path}: extends: circular ({base_name})"])
+        base = _load(base_path, seen + (path.resolve(),))
+        if base.model != model:
+            check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
+        parameters.update(base.parameters)
+    values = check.mapping(top.get("parameters", {}), "parameters",
+                           optional=tuple(top.get("parameters") or ()))
+    for key, value in (values or {}).items():
+        number = check.number(value, f"parameters.{key}")
+        if number is not None:
+            parameters[key] = number
+    check.done()
+    return PlantSet(path.stem, path, model, str(description), MappingProxyType(parameters))
+
+
+def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
+    for key in ("A", "B", "C", "time"):
+        if key not in top:
+            check.fail(key, "missing (a linear plant needs A, B, C and time)")
+    check.done()
+    time = check.string(top["time"], "time", ("continuous", "discrete"))
+    A = check.matrix(top["A"], "A")
+    n = len(A) if A else None
+    if A and len(A[0]) != n:
+        check.fail("A", f"must be square, got {len(A)}x{len(A[0])}")
+    B = check.matrix(top["B"], "B", rows=n)
+    C = check.matrix(top["C"], "C", cols=n)
+    check.done()
+    nu, ny = len(B[0]), len(C)
+    D = check.matrix(top.get("D", [[0.0] * nu] * ny), "D", rows=ny, cols=nu)
+    inputs = check.names(top.get("inputs", [f"u{k + 1}" for k in range(nu)] if nu > 1 else ["u"]),
+                         "inputs", nu)
+    outputs = check.names(top.get("outputs", [f"y{k + 1}" for k in range(ny)] if ny > 1 else ["y"]),
+                          "outputs", ny)
+    states = check.names(top.get("states", [f"x{k + 1}" for k in range(n)]), "states", n)
+    x0 = check.vector(top.get("x0", [0.0] * n), "x0", n)
+    period = check.number(top.get("period", 1.0), "period", positive=True)
+    substeps = check.number(top.get("substeps", 10), "substeps", minimum=1, integer=True)
+    identifier = top.get("identifier") or "".join(p.capitalize() for p in re.split(r"[^A-Za-z0-9]+", path.stem))
+    if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(identifier)):
+        check.fail("identifier", f"must be a C identifier, got {identifier!r}")
+    if inputs and outputs and states and len(set(inputs + outputs + states)) != nu + ny + n:
+        check.fail("inputs/outputs/states", "names must differ from each other")
+    if time == "continuous" and "period" in top:
+        check.fail("period", "only a discrete plant has a sample period")
+    check.done()
+    return LinearSpec(str(identifier), str(top.get("description", "")), time == "discrete",
+                      period, substeps, A, B, C, D, inputs, outputs, states, x0)

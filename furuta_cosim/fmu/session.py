@@ -1,0 +1,340 @@
+"""A fast plant session: one FMI 2.0 instance driven through raw fmi2 calls (cffi).
+
+fmpy reads the model description and extracts the FMU once; the fmi2 functions are then
+called directly with buffers and value references prepared once, because the convenience
+wrappers cost several times the model's own step (see ``tools/bench_fmu.py``).
+
+    with PlantSession.open(build_fmu("furuta")) as plant:
+        plant.reset(parameters={"theta1_start": 0.1})
+        plant.set_io(inputs=["V"], outputs=["theta0", "dtheta0", "theta1", "dtheta1", "i"])
+        for k in range(1000):
+            y = plant.step([0.0], 1e-3)
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+from typing import Iterable, Mapping, Sequence
+
+import cffi
+import fmpy
+from fmpy.model_description import ModelDescription
+
+from furuta_cosim.errors import FmuError
+
+_FFI = cffi.FFI()
+_FFI.cdef("""
+typedef void* fmi2Component;
+typedef unsigned int fmi2ValueReference;
+typedef struct {
+    void (*logger)(void*, const char*, int, const char*, const char*);
+    void* (*allocateMemory)(size_t, size_t);
+    void (*freeMemory)(void*);
+    void* stepFinished;
+    void* componentEnvironment;
+} fmi2CallbackFunctions;
+typedef struct {
+    int newDiscreteStatesNeeded; int terminateSimulation;
+    int nominalsOfContinuousStatesChanged; int valuesOfContinuousStatesChanged;
+    int nextEventTimeDefined; double nextEventTime;
+} fmi2EventInfo;
+fmi2Component fmi2Instantiate(const char*, int, const char*, const char*,
+                              const fmi2CallbackFunctions*, int, int);
+void fmi2FreeInstance(fmi2Component);
+int fmi2SetupExperiment(fmi2Component, int, double, double, int, double);
+int fmi2EnterInitializationMode(fmi2Component);
+int fmi2ExitInitializationMode(fmi2Component);
+int fmi2Terminate(fmi2Component);
+int fmi2Reset(fmi2Component);
+int fmi2GetReal(fmi2Component, const fmi2ValueReference*, size_t, double*);
+int fmi2SetReal(fmi2Component, const fmi2ValueReference*, size_t, const double*);
+int fmi2GetInteger(fmi2Component, const fmi2ValueReference*, size_t, int*);
+int fmi2SetInteger(fmi2Component, const fmi2ValueReference*, size_t, const int*);
+int fmi2DoStep(fmi2Component, double, double, int);
+int fmi2GetFMUstate(fmi2Component, void**);
+int fmi2SetFMUstate(fmi2Component, void*);
+int fmi2FreeFMUstate(fmi2Component, void**);
+int fmi2EnterContinuousTimeMode(fmi2Component);
+int fmi2NewDiscreteStates(fmi2Component, fmi2EventInfo*);
+int fmi2SetContinuousStates(fmi2Component, const double*, size_t);
+int fmi2GetContinuousStates(fmi2Component, double*, size_t);
+int fmi2GetDerivatives(fmi2Component, double*, size_t);
+void* calloc(size_t, size_t);
+void free(void*);
+""")
+_LIBC = _FFI.dlopen(None)
+_ERROR = 3  # fmi2Error; fmi2Discard (2) is treated as an error too: nothing here retries
+
+
+class FmuBinary:
+    """An extracted FMU with its shared library loaded; shared by the sessions on it."""
+
+    def __init__(self, fmu: str | Path):
+        self.path = Path(fmu)
+        if not self.path.is_file():
+            raise FmuError(f"{self.path}: no such FMU")
+        try:
+            self.model_description: ModelDescription = fmpy.read_model_description(str(self.path))
+        except Exception as error:  # fmpy raises bare Exceptions for malformed FMUs
+            raise FmuError(f"{self.path}: cannot read modelDescription.xml: {error}") from None
+        md = self.model_description
+        interface = md.coSimulation or md.modelExchange
+        self.identifier = interface.modelIdentifier
+        self.directory = Path(fmpy.extract(str(self.path)))
+        library = self.directory / "binaries" / fmpy.platform / f"{self.identifier}{fmpy.sharedLibraryExtension}"
+        if not library.is_file():
+            shutil.rmtree(self.directory, ignore_errors=True)
+            raise FmuError(f"{self.path}: no binary for {fmpy.platform} "
+                           f"(rebuild it from sources/ with 'fmpy compile')")
+        self.lib = _FFI.dlopen(str(library))
+        self.variables = {v.name: v for v in md.modelVariables}
+        # states are the outputs that have a start parameter "<name>_start"
+        self.states = [v.name for v in md.modelVariables
+                       if v.causality == "output" and f"{v.name}_start" in self.variables]
+
+    def variable(self, name: str):
+        try:
+            return self.variables[name]
+        except KeyError:
+            known = ", ".join(self.variables)
+            raise FmuError(f"{self.identifier} has no variable {name!r} (known: {known})") from None
+
+    def close(self) -> None:
+        if self.lib is not None:
+            _FFI.dlclose(self.lib)
+            self.lib = None
+            shutil.rmtree(self.directory, ignore_errors=True)
+
+    def __enter__(self) -> "FmuBinary":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class PlantSession:
+    """One FMU instance: parameters, reset, inputs, steps and outputs, with few allocations.
+
+    Parameters
+    ----------
+    binary : FmuBinary
+        The loaded FMU; :meth:`open` creates one that the session owns.
+    interface : {"CoSimulation", "ModelExchange"}
+        Model exchange serves linearization (states in, derivatives out).
+    """
+
+    def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
+        self.binary = binary
+        self._owns_binary = False
+        self._lib = binary.lib
+        self._messages: list[str] = []
+        self._interface = interface
+        md = binary.model_description
+        if interface == "ModelExchange" and md.modelExchange is None:
+            raise FmuError(f"{binary.identifier} has no model exchange interface")
+        self._logger = _FFI.callback("void(void*, const char*, int, const char*, const char*)",
+                                     self._log)
+        self._callbacks = _FFI.new("fmi2CallbackFunctions*")
+        self._callbacks.logger = self._logger
+        self._callbacks.allocateMemory = _LIBC.calloc
+        self._callbacks.freeMemory = _LIBC.free
+        self._name = _FFI.new("char[]", name.encode())
+        self._guid = _FFI.new("char[]", md.guid.encode())
+        self._resources = _FFI.new("char[]", (self.binary.directory / "resources").as_uri().encode())
+        self._c = self._lib.fmi2Instantiate(self._name, 0 if interface == "ModelExchange" else 1,
+                                            self._guid, self._resources, self._callbacks, 0, 0)
+        if self._c == _FFI.NULL:
+            raise FmuError(f"{binary.identifier}: fmi2Instantiate failed: {self._drain()}")
+        self._nx = len(binary.states)
+        self._x = _FFI.new("double[]", max(self._nx, 1))
+        self._dx = _FFI.new("double[]", max(self._nx, 1))
+        self._in_vr = self._out_vr = _FFI.new("fmi2ValueReference[]", 1)
+        self._in = self._out = _FFI.new("double[]", 1)
+        self._n_in = self._n_out = 0
+        self.inputs: list[str] = []
+        self.outputs: list[str] = []
+        self.time = 0.0
+        self._start = 0.0
+        self._k = 0
+        self._h = 0.0
+        self._initialized = False
+
+    @classmethod
+    def open(cls, fmu: str | Path, interface: str = "CoSimulation") -> "PlantSession":
+        """Extract and load ``fmu`` for this session alone; :meth:`close` removes it again."""
+        binary = FmuBinary(fmu)
+        try:
+            session = cls(binary, interface)
+        except Exception:
+            binary.close()
+            raise
+        session._owns_binary = True
+        return session
+
+    # -- errors ----------------------------------------------------------------------------
+    def _log(self, env, instance, status, category, message) -> None:
+        self._messages.append(_FFI.string(message).decode(errors="replace"))
+
+    def _drain(self) -> str:
+        text = "; ".join(self._messages) or "no message"
+        self._messages.clear()
+        return text
+
+    def _check(self, status: int, what: str) -> None:
+        if status >= 2:
+            raise FmuError(f"{self.binary.identifier}: {what} failed: {self._drain()}")
+
+    # -- set-up ----------------------------------------------------------------------------
+    def reset(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0) -> None:
+        """Return to the FMU's start values, apply ``parameters`` and initialize at ``start_time``.
+
+        ``parameters`` may name any parameter or input; ``<state>_start`` sets initial states.
+        """
+        lib, c = self._lib, self._c
+        if self._initialized:
+            self._check(lib.fmi2Reset(c), "fmi2Reset")
+        reals, integers = self._split(parameters or {})
+        self._check(lib.fmi2SetupExperiment(c, 0, 0.0, start_time, 0, 0.0), "fmi2SetupExperiment")
+        self._check(lib.fmi2EnterInitializationMode(c), "fmi2EnterInitializationMode")
+        self._initialized = True
+        if reals:
+            vrs, values = zip(*reals)
+            self._check(lib.fmi2SetReal(c, vrs, len(vrs), values), "setting parameters")
+        if integers:
+            vrs, values = zip(*integers)
+            self._check(lib.fmi2SetInteger(c, vrs, len(vrs), values), "setting parameters")
+        self._check(lib.fmi2ExitInitializationMode(c), "fmi2ExitInitializationMode")
+        if self._interface == "ModelExchange":
+            info = _FFI.new("fmi2EventInfo*")
+            self._check(lib.fmi2NewDiscreteStates(c, info), "fmi2NewDiscreteStates")
+            self._check(lib.fmi2EnterContinuousTimeMode(c), "fmi2EnterContinuousTimeMode")
+        self.time = self._start = start_time
+        self._k = 0
+
+    def _split(self, values: Mapping[str, float]):
+        reals, integers = [], []
+        for name, value in values.items():
+            variable = self.binary.variable(name)
+            if variable.causality not in ("parameter", "input"):
+                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.causality}, "
+                               "it cannot be set")
+            if variable.type == "Integer":
+                if value != int(value):
+                    raise FmuError(f"{self.binary.identifier}: {name} must be a whole number, got {value}")
+                integers.append((variable.valueReference, int(value)))
+            else:
+                if not math.isfinite(value):
+                    raise FmuError(f"{self.binary.identifier}: {name} = {value} is not finite")
+                reals.append((variable.valueReference, float(value)))
+        return reals, integers
+
+    def set_io(self, inputs: Sequence[str] = (), outputs: Sequence[str] = ()) -> None:
+        """Choose the inputs :meth:`step` takes and the outputs it returns, in that order."""
+        self.inputs, self.outputs = list(inputs), list(outputs)
+        self._n_in, self._n_out = len(self.inputs), len(self.outputs)
+        self._in_vr = _FFI.new("fmi2ValueReference[]", [self._real_vr(n, "input") for n in inputs] or [0])
+        self._out_vr = _FFI.new("fmi2ValueReference[]", [self._real_vr(n, None) for n in outputs] or [0])
+        self._in = _FFI.new("double[]", max(self._n_in, 1))
+        self._out = _FFI.new("double[]", max(self._n_out, 1))
+
+    def _real_vr(self, name: str, causality: str | None) -> int:
+        variable = self.binary.variable(name)
+        if variable.type != "Real" or (causality and variable.causality != causality):
+            raise FmuError(f"{self.binary.identifier}: {name} is not a Real {causality or 'variable'}")
+        return variable.valueReference
+
+    # -- the hot path ----------------------------------------------------------------------
+    def step(self, inputs: Sequence[float], h: float) -> list[float]:
+        """Set the chosen inputs, advance by ``h`` and return the chosen outputs.
+
+        Time is kept as ``t0 + k*h`` while ``h`` stays the same, so it does not drift.
+        """
+        lib, c = self._lib, self._c
+        if self._n_in:
+            self._in[0:self._n_in] = inputs
+            if lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in) >= 2:
+                self._check(_ERROR, f"setting {', '.join(self.inputs)} = {list(inputs)}")
+        if h != self._h:
+            self._start, self._k, self._h = self.time, 0, h
+        if lib.fmi2DoStep(c, self.time, h, 1) >= 2:
+            self._check(_ERROR, f"fmi2DoStep at t = {self.time:.9g}")
+        self._k += 1
+        self.time = self._start + self._k * h
+        if self._n_out:
+            lib.fmi2GetReal(c, self._out_vr, self._n_out, self._out)
+            return _FFI.unpack(self._out, self._n_out)
+        return []
+
+    # -- any variable, any time ------------------------------------------------------------
+    def get(self, names: Iterable[str]) -> list[float]:
+        """Current values of Real or Integer variables."""
+        values = []
+        for name in names:
+            variable = self.binary.variable(name)
+            if variable.type == "Integer":
+                buffer = _FFI.new("int[1]")
+                self._check(self._lib.fmi2GetInteger(self._c, [variable.valueReference], 1, buffer),
+                            f"reading {name}")
+            else:
+                buffer = _FFI.new("double[1]")
+                self._check(self._lib.fmi2GetReal(self._c, [variable.valueReference], 1, buffer),
+                            f"reading {name}")
+            values.append(buffer[0])
+        return values
+
+    def set(self, values: Mapping[str, float]) -> None:
+        """Set Real inputs between steps."""
+        reals, integers = self._split(values)
+        if integers:
+            raise FmuError(f"{self.binary.identifier}: integers are parameters, set them in reset()")
+        if reals:
+            vrs, numbers = zip(*reals)
+            self._check(self._lib.fmi2SetReal(self._c, vrs, len(vrs), numbers), "fmi2SetReal")
+
+    # -- model exchange --------------------------------------------------------------------
+    def derivatives(self, x: Sequence[float]) -> list[float]:
+        """f(x, inputs) of a model-exchange session, states ordered as the FMU declares them."""
+        self._x[0:self._nx] = x
+        self._check(self._lib.fmi2SetContinuousStates(self._c, self._x, self._nx),
+                    "fmi2SetContinuousStates")
+        self._check(self._lib.fmi2GetDerivatives(self._c, self._dx, self._nx), "fmi2GetDerivatives")
+        return _FFI.unpack(self._dx, self._nx)
+
+    # -- FMU state -------------------------------------------------------------------------
+    def save_state(self):
+        """A snapshot of the instance (fmi2GetFMUstate); give it to :meth:`restore_state`."""
+        state = _FFI.new("void**")
+        self._check(self._lib.fmi2GetFMUstate(self._c, state), "fmi2GetFMUstate")
+        return _Snapshot(self, state, self.time)
+
+    def restore_state(self, snapshot: "_Snapshot") -> None:
+        self._check(self._lib.fmi2SetFMUstate(self._c, snapshot.pointer[0]), "fmi2SetFMUstate")
+        self.time, self._start, self._k = snapshot.time, snapshot.time, 0
+
+    # -- end -------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Terminate and free the instance; remove the extracted FMU if this session owns it."""
+        if self._c is not None:
+            if self._initialized:
+                self._lib.fmi2Terminate(self._c)
+            self._lib.fmi2FreeInstance(self._c)
+            self._c = None
+        if self._owns_binary:
+            self.binary.close()
+
+    def __enter__(self) -> "PlantSession":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class _Snapshot:
+    def __init__(self, session: PlantSession, pointer, time: float):
+        self.session, self.pointer, self.time = session, pointer, time
+
+    def __del__(self):
+        if self.session._c is not None and self.pointer[0] != _FFI.NULL:
+            self.session._lib.fmi2FreeFMUstate(self.session._c, self.pointer)
