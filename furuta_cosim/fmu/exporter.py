@@ -209,6 +209,26 @@ def _compiler() -> str:
     return compiler
 
 
+def build_helper(source: Path) -> Path | None:
+    """Compile a small C helper of the package into the cache; None without a compiler."""
+    try:
+        compiler = _compiler()
+    except FmuError:
+        return None
+    text = source.read_bytes()
+    key = hashlib.sha256(text + " ".join((compiler, *CFLAGS)).encode()).hexdigest()[:16]
+    target = paths.cache() / f"{source.stem}-{key}.so"
+    if not target.is_file():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        partial = target.with_suffix(f".{os.getpid()}.partial")
+        result = subprocess.run([compiler, *CFLAGS, str(source), "-o", str(partial)],
+                                capture_output=True, text=True)
+        if result.returncode != 0:
+            raise FmuError(f"compiling {source.name} failed:\n{result.stderr.strip()}")
+        os.replace(partial, target)
+    return target
+
+
 def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None,
               log=None) -> Path:
     """Build (or take from the cache) the FMU of ``plant`` and return its path.
@@ -246,7 +266,7 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
         _build(model, files, guid, compiler, target)
     if output is not None:
         output = Path(output)
-        if output.is_dir():
+        if output.is_dir() or output.suffix != ".fmu":
             output = output / f"{model.identifier}.fmu"
         output.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(target, output)

@@ -55,7 +55,11 @@ def plant_path(name: str | Path) -> Path:
         default = _default_set(model_dir / "model.py")
         if default:
             return paths.scenarios() / "plants" / f"{default}.yaml"
-    return paths.scenarios() / "plants" / f"{name}.yaml"
+    path = paths.scenarios() / "plants" / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in (paths.scenarios() / "plants").glob("*.yaml"))
+        raise ConfigError([f"{name}: no such plant file or plant name (known: {', '.join(known)})"])
+    return path
 
 
 def _default_set(model_py: Path) -> str | None:
@@ -75,12 +79,15 @@ def _load(path: Path, seen: tuple) -> PlantSet:
                         optional=("description", "extends", "parameters", "identifier", "time",
                                   "period", "substeps", "A", "B", "C", "D", "inputs", "outputs",
                                   "states", "x0"))
-    check.done()
+    if top is None or "model" not in top:
+        check.done()
     model = check.string(top["model"], "model")
-    check.done()
+    if model is None:
+        check.done()
     if not (paths.fmu_sources() / model / "model.py").is_file():
         known = sorted(p.name for p in paths.fmu_sources().iterdir() if (p / "model.py").is_file())
-        raise ConfigError([f"{path}: model: no plant {model!r} in fmu_src (known: {', '.join(known)})"])
+        check.fail("model", f"no plant model {model!r} in fmu_src (known: {', '.join(known)})")
+        check.done()
     description = top.get("description", "")
     if model == "linear":
         return PlantSet(path.stem, path, model, str(description), linear=_linear(top, path, check))
@@ -106,10 +113,11 @@ def _load(path: Path, seen: tuple) -> PlantSet:
 
 
 def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
-    for key in ("A", "B", "C", "time"):
-        if key not in top:
-            check.fail(key, "missing (a linear plant needs A, B, C and time)")
-    check.done()
+    missing = [key for key in ("A", "B", "C", "time") if key not in top]
+    for key in missing:
+        check.fail(key, "missing (a linear plant needs A, B, C and time)")
+    if missing:
+        check.done()
     time = check.string(top["time"], "time", ("continuous", "discrete"))
     A = check.matrix(top["A"], "A")
     n = len(A) if A else None
@@ -117,7 +125,8 @@ def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
         check.fail("A", f"must be square, got {len(A)}x{len(A[0])}")
     B = check.matrix(top["B"], "B", rows=n)
     C = check.matrix(top["C"], "C", cols=n)
-    check.done()
+    if A is None or B is None or C is None:
+        check.done()
     nu, ny = len(B[0]), len(C)
     D = check.matrix(top.get("D", [[0.0] * nu] * ny), "D", rows=ny, cols=nu)
     inputs = check.names(top.get("inputs", [f"u{k + 1}" for k in range(nu)] if nu > 1 else ["u"]),

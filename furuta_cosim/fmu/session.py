@@ -23,6 +23,7 @@ import fmpy
 from fmpy.model_description import ModelDescription
 
 from furuta_cosim.errors import FmuError
+from furuta_cosim.fmu.exporter import build_helper
 
 _FFI = cffi.FFI()
 _FFI.cdef("""
@@ -61,10 +62,26 @@ int fmi2NewDiscreteStates(fmi2Component, fmi2EventInfo*);
 int fmi2SetContinuousStates(fmi2Component, const double*, size_t);
 int fmi2GetContinuousStates(fmi2Component, double*, size_t);
 int fmi2GetDerivatives(fmi2Component, double*, size_t);
+typedef struct {
+    void* set_real; void* do_step; void* get_real; void* component;
+    const fmi2ValueReference* in_vr; size_t n_in; const double* in_;
+    const fmi2ValueReference* out_vr; size_t n_out; double* out;
+} StepCall;
+int step_io(const StepCall*, double, double);
 void* calloc(size_t, size_t);
 void free(void*);
 """)
 _LIBC = _FFI.dlopen(None)
+_HELPER = None
+
+
+def _step_helper():
+    """The compiled step_io (one foreign call per step), or None to fall back to three."""
+    global _HELPER
+    if _HELPER is None:
+        path = build_helper(Path(__file__).parent / "_c" / "step_io.c")
+        _HELPER = _FFI.dlopen(str(path)) if path else False
+    return _HELPER or None
 _ERROR = 3  # fmi2Error; fmi2Discard (2) is treated as an error too: nothing here retries
 
 
@@ -147,14 +164,12 @@ class PlantSession:
                                             self._guid, self._resources, self._callbacks, 0, 0)
         if self._c == _FFI.NULL:
             raise FmuError(f"{binary.identifier}: fmi2Instantiate failed: {self._drain()}")
+        helper = _step_helper()
+        self._step_io = helper.step_io if helper else self._step_three_calls
         self._nx = len(binary.states)
         self._x = _FFI.new("double[]", max(self._nx, 1))
         self._dx = _FFI.new("double[]", max(self._nx, 1))
-        self._in_vr = self._out_vr = _FFI.new("fmi2ValueReference[]", 1)
-        self._in = self._out = _FFI.new("double[]", 1)
-        self._n_in = self._n_out = 0
-        self.inputs: list[str] = []
-        self.outputs: list[str] = []
+        self.set_io()
         self.time = 0.0
         self._start = 0.0
         self._k = 0
@@ -238,6 +253,13 @@ class PlantSession:
         self._out_vr = _FFI.new("fmi2ValueReference[]", [self._real_vr(n, None) for n in outputs] or [0])
         self._in = _FFI.new("double[]", max(self._n_in, 1))
         self._out = _FFI.new("double[]", max(self._n_out, 1))
+        call = self._call = _FFI.new("StepCall*")
+        call.set_real = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi2SetReal"))
+        call.do_step = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi2DoStep"))
+        call.get_real = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi2GetReal"))
+        call.component = self._c
+        call.in_vr, call.n_in, call.in_ = self._in_vr, self._n_in, self._in
+        call.out_vr, call.n_out, call.out = self._out_vr, self._n_out, self._out
 
     def _real_vr(self, name: str, causality: str | None) -> int:
         variable = self.binary.variable(name)
@@ -251,21 +273,33 @@ class PlantSession:
 
         Time is kept as ``t0 + k*h`` while ``h`` stays the same, so it does not drift.
         """
-        lib, c = self._lib, self._c
-        if self._n_in:
+        if self._n_in == 1:
+            self._in[0] = inputs[0]
+        elif self._n_in:
             self._in[0:self._n_in] = inputs
-            if lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in) >= 2:
-                self._check(_ERROR, f"setting {', '.join(self.inputs)} = {list(inputs)}")
         if h != self._h:
             self._start, self._k, self._h = self.time, 0, h
-        if lib.fmi2DoStep(c, self.time, h, 1) >= 2:
-            self._check(_ERROR, f"fmi2DoStep at t = {self.time:.9g}")
+        failed = self._step_io(self._call, self.time, h)
+        if failed:
+            self._step_failed(failed, inputs)
         self._k += 1
         self.time = self._start + self._k * h
-        if self._n_out:
-            lib.fmi2GetReal(c, self._out_vr, self._n_out, self._out)
-            return _FFI.unpack(self._out, self._n_out)
-        return []
+        return _FFI.unpack(self._out, self._n_out)
+
+    def _step_failed(self, which: int, inputs: Sequence[float]) -> None:
+        what = {1: f"setting {', '.join(self.inputs)} = {list(inputs)}",
+                2: f"fmi2DoStep at t = {self.time:.9g}", 3: "reading the outputs"}[which]
+        self._check(_ERROR, what)
+
+    def _step_three_calls(self, call, t: float, h: float) -> int:
+        lib, c = self._lib, self._c
+        if self._n_in and lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in) >= 2:
+            return 1
+        if lib.fmi2DoStep(c, t, h, 1) >= 2:
+            return 2
+        if self._n_out and lib.fmi2GetReal(c, self._out_vr, self._n_out, self._out) >= 2:
+            return 3
+        return 0
 
     # -- any variable, any time ------------------------------------------------------------
     def get(self, names: Iterable[str]) -> list[float]:

@@ -1,0 +1,23 @@
+"""Shared fixtures. FMUs are built into a fresh cache per test run, as on a new machine."""
+
+import os
+import tempfile
+
+# before any furuta_cosim import reads it: every test run builds its FMUs from the sources
+os.environ["FURUTA_COSIM_CACHE"] = tempfile.mkdtemp(prefix="furuta-cosim-test-cache-")
+
+import pytest  # noqa: E402
+
+from furuta_cosim.fmu.exporter import build_fmu  # noqa: E402
+
+STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
+
+
+@pytest.fixture(scope="session")
+def furuta_fmu():
+    return build_fmu("furuta")
+
+
+@pytest.fixture(scope="session")
+def toy_fmu():
+    return build_fmu("toy")

@@ -1,0 +1,120 @@
+"""Bad input to the FMU gets a clear error from C (through the logger) and from Python."""
+
+import math
+import zipfile
+
+import pytest
+
+from furuta_cosim.cli import main
+from furuta_cosim.errors import ConfigError, FmuError
+from furuta_cosim.fmu.exporter import build_fmu
+from furuta_cosim.fmu.plants import load_plant
+from furuta_cosim.fmu.session import PlantSession
+
+from conftest import STATES
+
+
+@pytest.fixture(scope="module")
+def plant(furuta_fmu):
+    with PlantSession.open(furuta_fmu) as session:
+        yield session
+
+
+def test_unknown_variable_is_named(plant):
+    with pytest.raises(FmuError, match=r"no variable 'thetaX'.*known: V, tau0"):
+        plant.reset({"thetaX": 1.0})
+    with pytest.raises(FmuError, match="no variable 'volts'"):
+        plant.set_io(["volts"], STATES)
+
+
+@pytest.mark.parametrize("name", ["m_p", "m_c", "I_p", "I_a", "I_m", "r", "l_p", "h", "L_a"])
+@pytest.mark.parametrize("value", [0.0, -1.0])
+def test_non_positive_physical_parameters_are_refused_by_the_fmu(plant, name, value):
+    with pytest.raises(FmuError, match=rf"{name} = -?[01] must be > 0"):
+        plant.reset({name: value})
+
+
+@pytest.mark.parametrize("name", ["C0", "R_a", "V_max"])
+def test_negative_friction_resistance_or_limit_are_refused(plant, name):
+    with pytest.raises(FmuError, match=rf"{name} = -0.5"):
+        plant.reset({name: -0.5})
+
+
+def test_zero_substeps_are_refused(plant):
+    with pytest.raises(FmuError, match="n_substeps = 0 must be >= 1"):
+        plant.reset({"n_substeps": 0})
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_non_finite_inputs_are_refused_by_the_fmu(plant, value):
+    plant.reset()
+    plant.set_io(["V", "tau1"], STATES)
+    with pytest.raises(FmuError, match=r"V = -?(nan|inf) is not finite"):
+        plant.step([value, 0.0], 1e-3)
+    # the refused input was not applied: the plant is still at rest
+    assert plant.step([0.0, 0.0], 1e-3) == [0.0] * 5
+
+
+def test_a_step_too_large_for_rk4_is_an_error_not_nan(plant):
+    plant.reset({"theta1_start": 0.1})
+    plant.set_io(["V"], STATES)
+    with pytest.raises(FmuError, match=r"integration diverged.*size 1 \(10 substeps\)"):
+        plant.step([0.0], 1.0)
+
+
+def test_parameters_cannot_change_while_running(plant):
+    plant.reset()
+    with pytest.raises(FmuError, match="parameter m_p can only be set before initialization"):
+        plant.set({"m_p": 0.2})
+    with pytest.raises(FmuError, match="theta0 is a output"):
+        plant.set({"theta0": 0.2})
+
+
+def test_plant_files_with_problems_list_them_all(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model: linear\ntime: sometimes\nA: [[1, 2]]\nB: [[1], [2], [3]]\nC: [1, 1]\n"
+                   "colour: red\n")
+    with pytest.raises(ConfigError) as error:
+        load_plant(bad)
+    text = str(error.value)
+    assert f"{bad}: colour: unknown key" in text
+    assert "time: expected one of continuous, discrete, got 'sometimes'" in text
+    assert "A: must be square, got 1x2" in text
+
+
+def test_unknown_parameter_in_a_set_is_named(tmp_path):
+    bad = tmp_path / "typo.yaml"
+    bad.write_text("model: furuta\nextends: paper-calibrated\nparameters:\n  m_pp: 0.1\n")
+    with pytest.raises(ConfigError, match=r"typo.yaml: parameters.m_pp: unknown parameter"):
+        build_fmu(bad)
+
+
+def test_cli_reports_bad_input_in_one_line_with_exit_2(tmp_path, capsys):
+    assert main(["linearize", "--params", "no-such-plant"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: no-such-plant: no such plant") and "Traceback" not in err
+
+
+def test_validate_fmu_fails_on_a_broken_fmu(tmp_path, furuta_fmu, capsys):
+    broken = tmp_path / "broken.fmu"
+    with zipfile.ZipFile(furuta_fmu) as source, zipfile.ZipFile(broken, "w") as target:
+        for item in source.infolist():
+            data = source.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'causality="output"', b'causality="outputs"', 1)
+            target.writestr(item, data)
+    assert main(["validate-fmu", str(broken)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL  fmpy validate" in out and "problems found" in out
+
+
+def test_validate_fmu_passes_both_fmus(furuta_fmu, toy_fmu, capsys):
+    for fmu in (furuta_fmu, toy_fmu):
+        assert main(["validate-fmu", str(fmu)]) == 0
+        out = capsys.readouterr().out
+        assert "ok    Ecos (same run as fmpy)" in out and out.rstrip().endswith("valid")
+
+
+def test_build_fmu_prints_the_path_last(capsys, tmp_path):
+    assert main(["build-fmu", "toy", "-o", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == str(tmp_path / "Toy.fmu")
