@@ -65,6 +65,113 @@ def cmd_validate_fmu(args) -> int:
     return EXIT_FAILED if failed else 0
 
 
+def _pairs(values) -> list:
+    return [[float(z.real), float(z.imag)] for z in values]
+
+
+def _model_problem(model_name: str, error) -> "ConfigError":
+    from furuta_cosim.errors import ConfigError
+    from furuta_cosim.fmu.plants import plant_path
+
+    try:
+        where = plant_path(model_name) if not model_name.startswith("derived") else model_name
+    except ConfigError:
+        where = model_name
+    return ConfigError([f"{where}: A, B: {error}"])
+
+
+def cmd_design_lqr(args) -> int:
+    import numpy as np
+
+    from furuta_cosim.controllers import ControllerFile, default_output, save_controller
+    from furuta_cosim.design import analyze, lqr
+    from furuta_cosim.errors import DesignError
+    from furuta_cosim.models import load_model
+
+    if not args.continuous and not args.period > 0:
+        raise DesignError(f"--period: must be > 0, got {args.period}")
+    model = load_model(args.model)
+    period = None if (args.continuous or model.discrete) else args.period
+    Q = None
+    if args.Q:
+        n = model.n
+        if len(args.Q) not in (n, n * n):
+            raise DesignError(f"--Q: expected {n} diagonal values or {n * n} entries, got {len(args.Q)}")
+        Q = np.diag(args.Q) if len(args.Q) == n else np.reshape(args.Q, (n, n))
+    R = None if args.R is None else np.reshape(args.R, (1, 1)) if len(args.R) == 1 else None
+    if args.R and R is None:
+        m = model.B.shape[1]
+        if len(args.R) != m * m:
+            raise DesignError(f"--R: expected 1 or {m * m} values, got {len(args.R)}")
+        R = np.reshape(args.R, (m, m))
+    try:
+        controller = lqr(model, Q, R, period)
+    except DesignError as error:
+        if "stabilizable" in str(error):
+            raise _model_problem(args.model, error) from None
+        raise
+    output = args.track or default_output(model)
+    controller = type(controller)(controller.Ac, controller.Bc, controller.Cc, controller.Dc,
+                                  controller.period, args.name, controller.provenance)
+    analysis = analyze(model, controller, tracked_output=output)
+    cfile = ControllerFile(controller, controller.period or (args.period if not args.continuous else 0.0),
+                           model.name, output, analysis.prefilter, args.description,
+                           provenance=controller.provenance)
+    if args.output:
+        path = save_controller(cfile, args.output)
+        print(f"wrote {path}", file=sys.stderr)
+    K = controller.K
+    result = {"K": K[0].tolist() if K.shape[0] == 1 else K.tolist(),
+              "closed_loop_eigenvalues": _pairs(analysis.eigenvalues),
+              "time": "discrete" if controller.discrete else "continuous",
+              "period": controller.period, "model": model.name,
+              "stable": analysis.stable, "prefilter": {"output": output, "F": analysis.prefilter},
+              "method": controller.provenance["method"]}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{result['method']} on {model.name}"
+              + (f" at period {controller.period:g} s" if controller.discrete else ""))
+        print("K = [" + " ".join(f"{k:.6g}" for k in np.ravel(K)) + "]")
+        print("closed-loop eigenvalues: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
+        print(f"prefilter for {output}: F = {analysis.prefilter:.6g}")
+    return 0
+
+
+def _complex(z) -> str:
+    return f"{z.real:.5g}{z.imag:+.5g}j" if z.imag else f"{z.real:.5g}"
+
+
+def cmd_analyze(args) -> int:
+    from furuta_cosim.controllers import check_fits, default_output, load_controller
+    from furuta_cosim.design import analyze
+    from furuta_cosim.errors import ConfigError
+    from furuta_cosim.models import load_model
+
+    cfile = load_controller(args.controller)
+    model_name = args.model or cfile.model
+    if not model_name:
+        raise ConfigError([f"{cfile.source}: model: missing; name one with --model"])
+    model = load_model(model_name)
+    cfile = check_fits(cfile, model)
+    c = cfile.controller
+    sampling = cfile.period if not c.discrete and cfile.period else None
+    analysis = analyze(model, c, sampling_period=sampling,
+                       tracked_output=cfile.tracked_output or default_output(model))
+    if args.json:
+        print(json.dumps(analysis.as_dict()))
+    else:
+        print(f"{cfile.name} on {model.name} ({'discrete, ' + format(c.period, 'g') + ' s' if c.discrete else 'continuous'})")
+        print("eigenvalues of Abar: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
+        if c.discrete:
+            print(f"spectral radius: {analysis.spectral_radius:.6g}")
+        else:
+            print(f"spectral abscissa: {analysis.spectral_abscissa:.6g}")
+        for line in analysis.verdict():
+            print(line)
+    return 0 if analysis.stable else EXIT_FAILED
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
@@ -83,6 +190,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inputs", nargs="+", help="inputs that make B's columns (default: all)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_linearize)
+
+    p = commands.add_parser("design", help="design a controller")
+    designs = p.add_subparsers(dest="design", required=True, metavar="METHOD")
+    q = designs.add_parser("lqr", help="linear-quadratic regulator (discrete at 2 ms by default)")
+    q.add_argument("--model", default="paper-printed",
+                   help="paper-printed (default), derived[:SET], toy, or a linear plant file")
+    timing = q.add_mutually_exclusive_group()
+    timing.add_argument("--period", type=float, default=2e-3,
+                        help="dlqr on the zero-order-hold model at this period (default 0.002 s)")
+    timing.add_argument("--continuous", action="store_true", help="continuous ARE instead")
+    q.add_argument("--Q", type=float, nargs="+", help="diagonal (n values) or full (n*n) state weight")
+    q.add_argument("--R", type=float, nargs="+", help="input weight (default 10 for the pendulum)")
+    q.add_argument("--track", help="output the prefilter makes track (default theta0 / first output)")
+    q.add_argument("--name", default="lqr", help="the controller's name in the file")
+    q.add_argument("--description", default="", help="a line saying what it is for")
+    q.add_argument("-o", "--output", help="write the controller file")
+    q.add_argument("--json", action="store_true", help="print JSON")
+    q.set_defaults(handler=cmd_design_lqr)
+
+    p = commands.add_parser("analyze", help="stability, dominant mode and prefilter of a controller")
+    p.add_argument("controller", help="controller file or name in scenarios/controllers")
+    p.add_argument("--model", help="model (default: the one the file names)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(handler=cmd_analyze)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

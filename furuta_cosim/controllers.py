@@ -1,0 +1,200 @@
+"""Controller files (YAML) <-> :class:`~furuta_cosim.design.GeneralizedController`.
+
+    name: lqr-paper
+    type: static                  # or generalized
+    time: discrete                # or continuous
+    period: 0.002                 # the control period (a continuous design is sampled at it)
+    K: [-0.3105, -5.2621, 70.7488, 8.9224, 0.1772]      # static
+    # Ac: [[-100]]  Bc: [[0, 0, 0, 0, 0]]  Cc: [[-0.5]]  Dc: [[...]]   # generalized
+    model: paper-printed          # the model it was designed on (analyze's default)
+    prefilter: {output: theta0, F: -0.3105}   # F is computed on the model when left out
+    provenance: {method: ..., Q: ..., R: ...}  # free-form: how it was made
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from furuta_cosim import __version__, paths
+from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.design.controller import GeneralizedController
+from furuta_cosim.design.linear import LinearModel
+from furuta_cosim.design.prefilter import prefilter
+from furuta_cosim.errors import ConfigError, DesignError
+
+KEYS = ("name", "type", "time", "period", "K", "Ac", "Bc", "Cc", "Dc", "model", "prefilter",
+        "provenance", "description")
+
+
+@dataclass(frozen=True)
+class ControllerFile:
+    """A controller with what the file says about its use."""
+
+    controller: GeneralizedController
+    period: float
+    model: str | None = None
+    tracked_output: str | None = None
+    F: float | None = None
+    description: str = ""
+    path: Path | None = None
+    provenance: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def name(self) -> str:
+        return self.controller.name
+
+    @property
+    def source(self) -> str:
+        return str(self.path) if self.path else self.name
+
+
+def controller_path(name: str | Path) -> Path:
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return path
+    path = paths.scenarios() / "controllers" / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in (paths.scenarios() / "controllers").glob("*.yaml"))
+        raise ConfigError([f"{name}: no such controller file or name (known: {', '.join(known)})"])
+    return path
+
+
+def load_controller(name: str | Path) -> ControllerFile:
+    """Read and validate a controller file; every problem is reported at once."""
+    path = controller_path(name)
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", required=("type", "time"), optional=KEYS)
+    if top is None:
+        check.done()
+    kind = check.string(top.get("type"), "type", ("static", "generalized")) if "type" in top else None
+    time = check.string(top.get("time"), "time", ("discrete", "continuous")) if "time" in top else None
+    period = None
+    if "period" in top:
+        period = check.number(top["period"], "period", positive=True)
+    elif time == "discrete":
+        check.fail("period", "missing (a discrete controller needs its sample period)")
+    matrices = {}
+    if kind == "static":
+        for key in ("Ac", "Bc", "Cc", "Dc"):
+            if key in top:
+                check.fail(key, "a static controller has only K (use type: generalized)")
+        if "K" not in top:
+            check.fail("K", "missing (a static controller needs its gain)")
+        else:
+            matrices["K"] = check.matrix(top["K"], "K")
+    elif kind == "generalized":
+        if "K" in top:
+            check.fail("K", "a generalized controller has Ac, Bc, Cc, Dc, not K")
+        for key in ("Ac", "Bc", "Cc", "Dc"):
+            if key not in top:
+                check.fail(key, "missing")
+            else:
+                matrices[key] = check.matrix(top[key], key)
+    if kind == "generalized" and all(matrices.get(k) is not None for k in ("Ac", "Bc", "Cc", "Dc")):
+        _check_shapes(check, *(np.array(matrices[k]) for k in ("Ac", "Bc", "Cc", "Dc")))
+    model = check.string(top["model"], "model") if "model" in top else None
+    tracked, F = None, None
+    if "prefilter" in top:
+        section = check.mapping(top["prefilter"], "prefilter", required=("output",), optional=("F",))
+        if section:
+            tracked = check.string(section.get("output"), "prefilter.output") if "output" in section else None
+            if "F" in section:
+                F = check.number(section["F"], "prefilter.F")
+    provenance = top.get("provenance", {})
+    if not isinstance(provenance, dict):
+        check.fail("provenance", "expected a mapping")
+    check.done()
+    name = str(top.get("name") or path.stem)
+    try:
+        if kind == "static":
+            controller = GeneralizedController.static(
+                matrices["K"], period if time == "discrete" else 0.0, name, provenance)
+        else:
+            controller = GeneralizedController(*(matrices[k] for k in ("Ac", "Bc", "Cc", "Dc")),
+                                               period if time == "discrete" else 0.0, name, provenance)
+    except DesignError as error:
+        raise ConfigError([f"{path}: {error}"]) from None
+    return ControllerFile(controller, period or 0.0, model, tracked, F,
+                          str(top.get("description", "")), path, provenance)
+
+
+def _check_shapes(check: Checker, Ac, Bc, Cc, Dc) -> None:
+    n_xc = Ac.shape[0]
+    if Ac.shape[0] != Ac.shape[1]:
+        check.fail("Ac", f"must be square, got {Ac.shape[0]}x{Ac.shape[1]}")
+    if Bc.shape[0] != n_xc:
+        check.fail("Bc", f"expected {n_xc} row(s) (as Ac), got {Bc.shape[0]}")
+    if Cc.shape[1] != n_xc:
+        check.fail("Cc", f"expected {n_xc} column(s) (as Ac), got {Cc.shape[1]}")
+    if Dc.shape[1] != Bc.shape[1]:
+        check.fail("Dc", f"expected {Bc.shape[1]} values per row (as Bc's columns), got {Dc.shape[1]}")
+    if Dc.shape[0] != Cc.shape[0]:
+        check.fail("Dc", f"expected {Cc.shape[0]} row(s) (as Cc), got {Dc.shape[0]}")
+
+
+def check_fits(cfile: ControllerFile, model: LinearModel) -> ControllerFile:
+    """Dimensions against the model, and the prefilter computed where the file leaves it out.
+
+    Problems are ConfigErrors naming the controller file and the key.
+    """
+    c = cfile.controller
+    key = "K" if c.n_xc == 0 else "Dc"
+    if c.Dc.shape[1] != model.n:
+        raise ConfigError([f"{cfile.source}: {key}: expected {model.n} values per row (model "
+                           f"{model.name} has {model.n} states), got {c.Dc.shape[1]}"])
+    if c.Dc.shape[0] != model.B.shape[1]:
+        raise ConfigError([f"{cfile.source}: {key}: expected {model.B.shape[1]} row(s) (model "
+                           f"{model.name} has {model.B.shape[1]} input(s)), got {c.Dc.shape[0]}"])
+    if c.discrete and model.discrete and abs(c.period - model.period) > 1e-12 * model.period:
+        raise ConfigError([f"{cfile.source}: period: {c.period} differs from model {model.name}'s "
+                           f"sample period {model.period}"])
+    if not c.discrete and model.discrete:
+        raise ConfigError([f"{cfile.source}: time: continuous controller on the discrete model "
+                           f"{model.name}"])
+    if cfile.tracked_output and cfile.F is None:
+        try:
+            return replace(cfile, F=prefilter(model, c, cfile.tracked_output))
+        except DesignError as error:
+            raise ConfigError([f"{cfile.source}: prefilter.output: {error}"]) from None
+    return cfile
+
+
+def default_output(model: LinearModel) -> str:
+    """theta0 for the pendulum, else the model's first output."""
+    return "theta0" if "theta0" in model.states + model.outputs else model.outputs[0]
+
+
+def controller_document(cfile: ControllerFile) -> dict:
+    c = cfile.controller
+    document = {"name": c.name, "description": cfile.description or None,
+                "type": "static" if c.n_xc == 0 else "generalized",
+                "time": "discrete" if c.discrete else "continuous"}
+    if cfile.period:
+        document["period"] = cfile.period
+    if c.n_xc == 0:
+        document["K"] = c.Dc[0].tolist() if c.Dc.shape[0] == 1 else c.Dc.tolist()
+    else:
+        document.update(Ac=c.Ac.tolist(), Bc=c.Bc.tolist(), Cc=c.Cc.tolist(), Dc=c.Dc.tolist())
+    if cfile.model:
+        document["model"] = cfile.model
+    if cfile.tracked_output:
+        document["prefilter"] = {"output": cfile.tracked_output, "F": cfile.F}
+    document["provenance"] = {**cfile.provenance, "tool": f"furuta-cosim {__version__}"}
+    return {k: v for k, v in document.items() if v is not None}
+
+
+def save_controller(cfile: ControllerFile, path: str | Path) -> Path:
+    """Write a controller file that :func:`load_controller` reads back unchanged."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = yaml.safe_dump(controller_document(cfile), sort_keys=False, default_flow_style=None,
+                          width=100)
+    partial = path.with_suffix(path.suffix + ".partial")
+    partial.write_text(f"# Written by furuta-cosim; see provenance for how it was designed.\n{text}")
+    partial.replace(path)
+    return path

@@ -1,0 +1,195 @@
+"""Closed-loop analysis: eigenvalues of Abar, the dominant mode, and stability verdicts.
+
+Verdicts: the loop (spectral abscissa < -margin, or spectral radius < 1 - margin), the
+controller by itself (eig(Ac); the paper recommends a stable controller), mean-square
+stability of the loop driven by white process noise (for this linear loop it holds exactly
+when Abar is stable; the stationary variances are reported), and for a continuous
+controller the exact sampled-data loop at a given period.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from furuta_cosim.design.controller import GeneralizedController, augmented, discretize_controller
+from furuta_cosim.design.linear import LinearModel
+from furuta_cosim.design.prefilter import prefilter
+from furuta_cosim.errors import DesignError
+
+MARGIN = 1e-9
+
+
+@dataclass(frozen=True)
+class Mode:
+    """An eigenvalue and its continuous-time reading (s = ln(z)/T for discrete loops)."""
+
+    eigenvalue: complex
+    s: complex
+
+    @property
+    def damping(self) -> float:
+        return -self.s.real / abs(self.s) if abs(self.s) > 0 else 1.0
+
+    @property
+    def settling_time(self) -> float:
+        """2 % settling time 4/|Re s|; infinite for a mode that does not decay."""
+        return 4.0 / -self.s.real if self.s.real < 0 else math.inf
+
+    def describe(self) -> str:
+        z = self.eigenvalue
+        text = f"{z.real:.4g}{'+-' if abs(z.imag) > 0 else ''}{abs(z.imag):.4g}j" if z.imag else f"{z.real:.4g}"
+        return text.replace("+-", " ± ")
+
+    def as_dict(self) -> dict:
+        return {"eigenvalue": [self.eigenvalue.real, self.eigenvalue.imag],
+                "s": [self.s.real, self.s.imag], "damping": self.damping,
+                "settling_time_2pct": None if math.isinf(self.settling_time) else self.settling_time}
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """Everything ``furuta-cosim analyze`` reports about a model and a controller."""
+
+    model: str
+    controller: str
+    period: float
+    eigenvalues: np.ndarray
+    stable: bool
+    dominant: Mode
+    controller_eigenvalues: np.ndarray
+    controller_stable: bool
+    stationary_variance: list | None
+    sampled: "Analysis | None" = None
+    prefilter: float | None = None
+    tracked_output: str | None = None
+    prefilter_problem: str | None = None
+
+    @property
+    def discrete(self) -> bool:
+        return self.period > 0
+
+    @property
+    def spectral_abscissa(self) -> float:
+        return float(np.max(self.eigenvalues.real))
+
+    @property
+    def spectral_radius(self) -> float:
+        return float(np.max(np.abs(self.eigenvalues)))
+
+    @property
+    def mean_square_stable(self) -> bool:
+        return self.stable
+
+    def as_dict(self) -> dict:
+        result = {"model": self.model, "controller": self.controller,
+                  "time": "discrete" if self.discrete else "continuous",
+                  "eigenvalues": [[z.real, z.imag] for z in self.eigenvalues]}
+        if self.discrete:
+            result["period"] = self.period
+            result["spectral_radius"] = self.spectral_radius
+        else:
+            result["spectral_abscissa"] = self.spectral_abscissa
+        result.update({"stable": self.stable, "dominant": self.dominant.as_dict(),
+                       "controller_eigenvalues": [[z.real, z.imag] for z in self.controller_eigenvalues],
+                       "controller_stable": self.controller_stable,
+                       "mean_square_stable": self.mean_square_stable,
+                       "stationary_variance": self.stationary_variance})
+        if self.sampled is not None:
+            result["sampled"] = {"period": self.sampled.period,
+                                 "spectral_radius": self.sampled.spectral_radius,
+                                 "stable": self.sampled.stable,
+                                 "dominant": self.sampled.dominant.as_dict()}
+        result["prefilter"] = ({"output": self.tracked_output, "F": self.prefilter}
+                               if self.prefilter is not None else
+                               {"output": self.tracked_output, "problem": self.prefilter_problem})
+        result["verdict"] = self.verdict()
+        return result
+
+    def verdict(self) -> list[str]:
+        """The analysis in words."""
+        d = self.dominant
+        lines = []
+        if self.stable:
+            lines.append(f"The closed loop is stable: its slowest mode {d.describe()} has damping "
+                         f"{d.damping:.3f} and settles (2 %) in about {d.settling_time:.3g} s.")
+        else:
+            growth = d.s.real
+            lines.append(f"The closed loop is UNSTABLE: the mode {d.describe()} grows"
+                         + (f" (amplitude doubles every {math.log(2) / growth:.3g} s)." if growth > 0
+                            else " or does not decay."))
+        if self.controller_eigenvalues.size == 0:
+            lines.append("The controller is static (n_xc = 0).")
+        elif self.controller_stable:
+            lines.append("The controller by itself is stable.")
+        else:
+            lines.append("The controller by itself is UNSTABLE (eig(Ac) outside the stable region):"
+                         " the paper advises against it in practice.")
+        lines.append("Mean-square stable with white process noise." if self.mean_square_stable
+                     else "Not mean-square stable: noise makes the state's variance grow without bound.")
+        if self.sampled is not None:
+            s = self.sampled
+            lines.append(f"Sampled at {s.period * 1e3:g} ms with zero-order hold the loop is "
+                         f"{'stable' if s.stable else 'UNSTABLE'} (spectral radius {s.spectral_radius:.6f}).")
+        if self.prefilter is not None:
+            lines.append(f"Prefilter for {self.tracked_output}: F = {self.prefilter:.6g}."
+                         + ("" if self.stable else " (The loop is unstable, so it never settles there.)"))
+        elif self.prefilter_problem:
+            lines.append(f"No prefilter: {self.prefilter_problem}")
+        return lines
+
+
+def _modes(eigenvalues: np.ndarray, period: float) -> list[Mode]:
+    if period > 0:
+        return [Mode(complex(z), complex(np.log(complex(z)) / period)) if z != 0 else
+                Mode(complex(z), complex(-math.inf)) for z in eigenvalues]
+    return [Mode(complex(z), complex(z)) for z in eigenvalues]
+
+
+def _sorted(eigenvalues: np.ndarray, discrete: bool) -> np.ndarray:
+    key = np.abs(eigenvalues) if discrete else eigenvalues.real
+    order = np.lexsort((eigenvalues.imag, -key))
+    return eigenvalues[order]
+
+
+def analyze(model: LinearModel, controller: GeneralizedController, *,
+            sampling_period: float | None = None, tracked_output: str | None = None,
+            margin: float = MARGIN) -> Analysis:
+    """Analyse the loop of ``model`` and ``controller`` (see the module docstring).
+
+    ``sampling_period`` adds the sampled-data loop of a continuous controller;
+    ``tracked_output`` adds its prefilter.
+    """
+    Abar, _ = augmented(model, controller)
+    discrete = controller.discrete
+    period = controller.period
+    eigenvalues = _sorted(np.linalg.eigvals(Abar), discrete)
+    if discrete:
+        stable = bool(np.max(np.abs(eigenvalues)) < 1.0 - margin)
+        dominant = max(_modes(eigenvalues, period), key=lambda m: abs(m.eigenvalue))
+    else:
+        stable = bool(np.max(eigenvalues.real) < -margin)
+        dominant = max(_modes(eigenvalues, 0.0), key=lambda m: m.eigenvalue.real)
+    ac = _sorted(np.linalg.eigvals(controller.Ac), discrete) if controller.n_xc else np.zeros(0, complex)
+    controller_stable = bool(np.all(np.abs(ac) < 1.0) if discrete else np.all(ac.real < 0.0))
+    variance = None
+    if stable:
+        noise = np.zeros_like(Abar)
+        noise[:model.n, :model.n] = np.eye(model.n)
+        P = (linalg.solve_discrete_lyapunov(Abar, noise) if discrete
+             else linalg.solve_continuous_lyapunov(Abar, -noise))
+        variance = [float(v) for v in np.diag(P)[:model.n]]
+    sampled = None
+    if sampling_period and not discrete and not model.discrete:
+        sampled = analyze(model, discretize_controller(controller, sampling_period), margin=margin)
+    F = problem = None
+    if tracked_output:
+        try:
+            F = prefilter(model, controller, tracked_output)
+        except DesignError as error:
+            problem = str(error)
+    return Analysis(model.name, controller.name, period, eigenvalues, stable, dominant, ac,
+                    controller_stable, variance, sampled, F, tracked_output, problem)

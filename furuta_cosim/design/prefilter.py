@@ -1,0 +1,40 @@
+"""Prefilters: r = F rbar, so that the chosen output tracks rbar with unit DC gain.
+
+With the augmented loop (Abar, Bbar) and the tracked output's row Cbar = [c, 0], the DC gain
+from r to y is  G = -Cbar Abar^-1 Bbar  (continuous)  or  Cbar (I - Abar)^-1 Bbar  (discrete),
+and F = G^-1. For static feedback this is the classical F; for the generalized controller it
+is the paper's generalized F (the paper's (A - I) form is the discrete-time formula).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from furuta_cosim.design.controller import GeneralizedController, augmented
+from furuta_cosim.design.linear import LinearModel
+from furuta_cosim.errors import DesignError
+
+
+def dc_gain(model: LinearModel, controller: GeneralizedController, output: str) -> float:
+    """Steady-state gain from r to ``output`` of the closed loop."""
+    Abar, Bbar = augmented(model, controller)
+    c = np.concatenate([model.output_vector(output), np.zeros(controller.n_xc)])
+    system = np.eye(len(Abar)) - Abar if controller.discrete else -Abar
+    try:
+        solution = np.linalg.solve(system, Bbar)
+    except np.linalg.LinAlgError:
+        raise DesignError(f"prefilter: the closed loop has a pole at "
+                          f"{'z = 1' if controller.discrete else 's = 0'}, so it has no DC gain") from None
+    gain = c @ solution
+    return float(gain[0]) if gain.size == 1 else gain
+
+
+def prefilter(model: LinearModel, controller: GeneralizedController, output: str) -> float:
+    """F with unit steady-state gain from rbar to ``output``; DesignError when singular."""
+    if model.B.shape[1] != 1:
+        raise DesignError("prefilter: only single-input plants are supported")
+    gain = dc_gain(model, controller, output)
+    if not np.isfinite(gain) or abs(gain) < 1e-12:
+        raise DesignError(f"prefilter: the DC gain from r to {output} is {gain:.3g}, so no "
+                          "prefilter can make it track (the loop blocks that output at steady state)")
+    return 1.0 / gain
