@@ -172,7 +172,83 @@ def cmd_analyze(args) -> int:
     return 0 if analysis.stable else EXIT_FAILED
 
 
+def _finite(value):
+    import math
+
+    return value if value is None or math.isfinite(value) else None
+
+
+def cmd_simulate(args) -> int:
+    import time
+    from pathlib import Path
+
+    from furuta_cosim.cosim.master import prepare, simulate
+    from furuta_cosim.metrics import all_pass, compute, verdicts
+    from furuta_cosim.report.figures import plot_runs
+    from furuta_cosim.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    prepared = prepare(scenario, args.controller)
+    started = time.perf_counter()
+
+    def progress(name, k, n):
+        if k == 0:
+            print(f"simulating {scenario.name} with {name}: {n} control steps", file=sys.stderr)
+
+    traces = simulate(prepared, progress)
+    elapsed = time.perf_counter() - started
+    out = Path(args.output or Path("out") / scenario.name)
+    results, passed = {}, True
+    for name, trace in traces.items():
+        metrics = compute(trace, scenario.reference.settles, scenario.error_window)
+        checks = verdicts(metrics, scenario.requirements, name)
+        passed &= all_pass(checks)
+        results[name] = {"metrics": {k: _finite(v) for k, v in metrics.items()},
+                         "requirements": {k: {**v, "value": _finite(v["value"])} for k, v in checks.items()},
+                         "trace": str(trace.to_csv(out / f"{name}.csv"))}
+    unit = "samples" if prepared.plant.linear and prepared.plant.linear.discrete else "s"
+    figures = plot_runs(traces, out / scenario.name, f"{scenario.name}: {scenario.description}",
+                        scenario.plot or None, unit)
+    document = {"scenario": scenario.name, "description": scenario.description,
+                "plant": prepared.plant.name, "control_period": prepared.control_period,
+                "steps": prepared.steps, "controllers": results,
+                "figures": [str(f) for f in figures], "passed": passed}
+    (out / "metrics.json").write_text(json.dumps(document, indent=2) + "\n")
+    if args.json:
+        print(json.dumps(document))
+    else:
+        _print_table(scenario, traces, results)
+        print(f"{len(traces)} run(s) of {prepared.steps} steps in {elapsed:.2f} s; "
+              f"traces, metrics.json and figures in {out}")
+    return 0 if passed else EXIT_FAILED
+
+
+def _print_table(scenario, traces, results) -> None:
+    first = next(iter(traces.values()))
+    keys = [f"{first.tracked}.{m}" for m in ("RiseTime", "SettlingTime", "Overshoot", "Peak")]
+    keys += ["error.IAE", "error.RMS", "u.peak_abs", "u.rms", "u.energy",
+             "theta1.max_abs", "theta1.SettlingTime"]
+    keys += [r.metric for r in scenario.requirements]
+    names = list(results)
+    rows = [k for k in dict.fromkeys(keys) if any(k in results[n]["metrics"] for n in names)]
+    width = max(len(k) for k in rows) if rows else 10
+    print(f"{'metric':{width}s}  " + "  ".join(f"{n:>16s}" for n in names))
+    for key in rows:
+        cells = []
+        for name in names:
+            value = results[name]["metrics"].get(key, "")
+            cells.append(f"{'never' if value is None else value if value == '' else format(value, '.4g'):>16}")
+        print(f"{key:{width}s}  " + "  ".join(cells))
+    for name in names:
+        for text, verdict in results[name]["requirements"].items():
+            value = verdict["value"]
+            shown = "no finite value" if value is None else format(value, ".6g")
+            print(f"{'PASS' if verdict['pass'] else 'FAIL'}  {name}: {text} (got {shown})")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from furuta_cosim.design.lqr import PAPER_PERIOD
+
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
         description="Co-simulation toolchain for the Furuta pendulum and other underactuated plants.")
@@ -197,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--model", default="paper-printed",
                    help="paper-printed (default), derived[:SET], toy, or a linear plant file")
     timing = q.add_mutually_exclusive_group()
-    timing.add_argument("--period", type=float, default=2e-3,
+    timing.add_argument("--period", type=float, default=PAPER_PERIOD,
                         help="dlqr on the zero-order-hold model at this period (default 0.002 s)")
     timing.add_argument("--continuous", action="store_true", help="continuous ARE instead")
     q.add_argument("--Q", type=float, nargs="+", help="diagonal (n values) or full (n*n) state weight")
@@ -214,6 +290,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help="model (default: the one the file names)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_analyze)
+
+    p = commands.add_parser("simulate", help="run a scenario: traces, metrics, figures")
+    p.add_argument("scenario", help="scenario file or name in scenarios/ (paper-step, toy-step, ...)")
+    p.add_argument("--controller", action="append",
+                   help="run this controller file instead of the scenario's (repeatable)")
+    p.add_argument("-o", "--output", help="folder for traces, metrics and figures (default out/<scenario>)")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.set_defaults(handler=cmd_simulate)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

@@ -12,6 +12,8 @@ from furuta_cosim.errors import DesignError
 # The paper's weights (Sec. V-B): the pendulum angle first, then the velocities.
 PAPER_Q = (1.0, 10.0, 100.0, 10.0, 1.0)
 PAPER_R = 10.0
+# The paper's control period: its printed K is dlqr at 2 ms (FINDINGS.md 2).
+PAPER_PERIOD = 2e-3
 
 
 def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> GeneralizedController:

@@ -1,0 +1,1 @@
+"""Co-simulation: Python controllers sampling the plant FMU, references, noise, traces."""

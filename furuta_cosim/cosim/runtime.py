@@ -1,0 +1,101 @@
+"""Controllers and estimators in a form fit for the hot loop.
+
+numpy on 5-element vectors costs more than the plant's whole step, so each discrete
+controller (and Kalman estimator) is turned into a small Python function over plain floats,
+generated from its matrices: zero coefficients vanish, the rest are float literals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from furuta_cosim.design.controller import GeneralizedController
+
+
+def _dot(row, names) -> str:
+    terms = [f"{float(a)!r}*{n}" for a, n in zip(row, names) if a != 0.0]
+    return " + ".join(terms) if terms else "0.0"
+
+
+def _compile(source: str, name: str):
+    namespace: dict = {}
+    exec(compile(source, f"<furuta-cosim {name}>", "exec"), namespace)  # noqa: S102 (numbers only)
+    return namespace["make"]()
+
+
+class RuntimeController:
+    """u[k] = F rbar[k] - (Cc xc[k] + Dc x[k]);  xc[k+1] = Ac xc[k] + Bc x[k] (single input).
+
+    ``__call__(x, rbar)`` returns u and advances the controller state; ``reset()`` zeroes it.
+    """
+
+    def __init__(self, controller: GeneralizedController, F: float = 1.0):
+        if not controller.discrete:
+            raise ValueError("the runtime needs a discrete controller: discretize it first")
+        if controller.Dc.shape[0] != 1:
+            raise ValueError("the runtime supports single-input plants")
+        n, m = controller.Dc.shape[1], controller.n_xc
+        xs = [f"x{j}" for j in range(n)]
+        cs = [f"c{j}" for j in range(m)]
+        feedback = _dot(np.concatenate([controller.Cc[0], controller.Dc[0]]), cs + xs)
+        lines = ["def make():"]
+        lines += [f"    {c} = 0.0" for c in cs]
+        lines.append("    def control(x, rbar):")
+        if cs:
+            lines.append(f"        nonlocal {', '.join(cs)}")
+        lines.append(f"        {', '.join(xs)}, = x")
+        lines.append(f"        u = {float(F)!r}*rbar - ({feedback})")
+        if cs:
+            updates = [_dot(np.concatenate([controller.Ac[i], controller.Bc[i]]), cs + xs)
+                       for i in range(m)]
+            lines.append(f"        {', '.join(cs)}, = {', '.join(updates)},")
+        lines.append("        return u")
+        lines.append("    def reset():")
+        if cs:
+            lines.append(f"        nonlocal {', '.join(cs)}")
+            lines += [f"        {c} = 0.0" for c in cs]
+        else:
+            lines.append("        pass")
+        lines.append(f"    def state():\n        return [{', '.join(cs)}]")
+        lines.append("    return control, reset, state")
+        self.source = "\n".join(lines) + "\n"
+        self.control, self.reset, self.state = _compile(self.source, controller.name or "controller")
+        self.n_xc = m
+
+    def __call__(self, x, rbar: float) -> float:
+        return self.control(x, rbar)
+
+
+class RuntimeEstimator:
+    """Steady-state Kalman filter in predictor-corrector form, over plain floats.
+
+    ``correct(y)`` returns xhat[k|k] = xpred + M (y - C xpred); ``predict(u)`` sets
+    xpred = Ad xhat + Bd u for the next sample. The prediction starts at zero.
+    """
+
+    def __init__(self, Ad, Bd, C, M):
+        n, p = Ad.shape[0], C.shape[0]
+        ps = [f"p{j}" for j in range(n)]
+        hs = [f"h{j}" for j in range(n)]
+        ys = [f"y{j}" for j in range(p)]
+        innovations = [f"e{i}" for i in range(p)]
+        lines = ["def make():"]
+        lines += [f"    {v} = 0.0" for v in ps + hs]
+        lines.append("    def correct(y):")
+        lines.append(f"        nonlocal {', '.join(hs)}")
+        lines.append(f"        {', '.join(ys)}, = y")
+        for i in range(p):
+            lines.append(f"        {innovations[i]} = {ys[i]} - ({_dot(C[i], ps)})")
+        for j in range(n):
+            lines.append(f"        {hs[j]} = {ps[j]} + {_dot(M[j], innovations)}")
+        lines.append(f"        return [{', '.join(hs)}]")
+        lines.append("    def predict(u):")
+        lines.append(f"        nonlocal {', '.join(ps)}")
+        updates = [f"{_dot(Ad[j], hs)} + {float(Bd[j, 0])!r}*u" for j in range(n)]
+        lines.append(f"        {', '.join(ps)}, = {', '.join(updates)},")
+        lines.append("    def reset():")
+        lines.append(f"        nonlocal {', '.join(ps + hs)}")
+        lines += [f"        {v} = 0.0" for v in ps + hs]
+        lines.append("    return correct, predict, reset")
+        self.source = "\n".join(lines) + "\n"
+        self.correct, self.predict, self.reset = _compile(self.source, "kalman")

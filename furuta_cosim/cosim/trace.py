@@ -1,0 +1,49 @@
+"""A run's time series: t, the reference, the applied input and every recorded signal."""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class Trace:
+    """Samples at the control instants t[k]: the values read before u[k] was applied."""
+
+    controller: str
+    t: np.ndarray
+    r: np.ndarray                 # the reference rbar, in the tracked output's units
+    u: np.ndarray                 # the input applied over [t[k], t[k+1])
+    signals: dict[str, np.ndarray]
+    tracked: str
+    input_name: str = "u"
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name in ("t", "r", "u"):
+            return getattr(self, name)
+        if name == "error":
+            return self.r - self.signals[self.tracked]
+        return self.signals[name]
+
+    def columns(self) -> list[str]:
+        return ["t", "r", "u", *self.signals]
+
+    def to_csv(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(self.columns())
+            writer.writerows(np.column_stack([self[c] for c in self.columns()]).tolist())
+        return path
+
+    @classmethod
+    def from_csv(cls, path: str | Path, controller: str, tracked: str, input_name: str = "u") -> "Trace":
+        data = np.genfromtxt(path, delimiter=",", names=True)
+        names = data.dtype.names
+        signals = {n: np.asarray(data[n]) for n in names if n not in ("t", "r", "u")}
+        return cls(controller, np.asarray(data["t"]), np.asarray(data["r"]), np.asarray(data["u"]),
+                   signals, tracked, input_name)

@@ -1,0 +1,127 @@
+"""Metrics of a trace, with python-control's step_info names, and requirement verdicts.
+
+Keys are ``<signal>.<metric>``:
+
+- the tracked output (when the reference ends constant): ``RiseTime``, ``SettlingTime``,
+  ``SettlingMin``, ``SettlingMax``, ``Overshoot``, ``Undershoot``, ``Peak``, ``PeakTime``,
+  ``SteadyStateValue`` of the response since the reference's last change, computed by
+  ``control.step_info`` on the response normalized to a unit step;
+- ``error.IAE``, ``error.ISE``, ``error.ITAE``, ``error.RMS`` of e = r - y (RMS over the
+  scenario's error window when it has one);
+- ``u.peak_abs``, ``u.rms``, ``u.energy`` (the integral of u^2);
+- for every recorded output ``<name>.max_abs``, and for an output that starts away from 0
+  while the reference is not about it, ``<name>.SettlingTime``: the time after which it stays
+  within 2 % of its initial offset around 0 (regulation).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import control
+import numpy as np
+
+from furuta_cosim.cosim.trace import Trace
+from furuta_cosim.scenario import Requirement
+
+STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
+              "Undershoot", "Peak", "PeakTime", "SteadyStateValue")
+THRESHOLD = 0.02
+
+
+def _integrals(t: np.ndarray, e: np.ndarray, dt: float) -> dict:
+    return {"IAE": float(np.sum(np.abs(e)) * dt), "ISE": float(np.sum(e ** 2) * dt),
+            "ITAE": float(np.sum(t * np.abs(e)) * dt)}
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray, y0: float, yfinal: float) -> dict | None:
+    """step_info of y going from y0 to yfinal; None when there is no change to measure."""
+    change = yfinal - y0
+    if abs(change) < 1e-12 or len(t) < 3:
+        return None
+    normalized = (y - y0) / change
+    try:
+        info = control.step_info(normalized, T=t - t[0], yfinal=1.0, SettlingTimeThreshold=THRESHOLD)
+    except IndexError:
+        # step_info needs the response to pass 90 % of the change; this one never did
+        info = {name: math.inf for name in STEP_NAMES}
+        info.update(SettlingMin=float(np.min(normalized)), SettlingMax=float(np.max(normalized)),
+                    Overshoot=0.0, Undershoot=float(max(0.0, -np.min(normalized)) * 100),
+                    Peak=float(np.max(np.abs(normalized))), PeakTime=float(t[np.argmax(np.abs(normalized))] - t[0]),
+                    SteadyStateValue=float(normalized[-1]))
+    scale = {"SettlingMin", "SettlingMax", "Peak", "SteadyStateValue"}
+    result = {}
+    for name in STEP_NAMES:
+        value = float(info[name])
+        result[name] = y0 + value * change if name in scale else value
+    result["Peak"] = float(np.max(np.abs(y)))
+    return result
+
+
+def regulation_settling(t: np.ndarray, y: np.ndarray) -> float | None:
+    """Time after which |y| stays within 2 % of |y(0)|; None if y starts at 0."""
+    band = THRESHOLD * abs(y[0])
+    if band == 0:
+        return None
+    outside = np.nonzero(np.abs(y) > band)[0]
+    if len(outside) == 0:
+        return 0.0
+    if outside[-1] == len(y) - 1:
+        return math.inf
+    return float(t[outside[-1] + 1])
+
+
+def compute(trace: Trace, settles: bool = True, error_window=None) -> dict[str, float]:
+    """All metrics of a trace as a flat ``{"signal.Metric": value}`` mapping."""
+    t, dt = trace.t, (trace.t[1] - trace.t[0]) if len(trace.t) > 1 else 1.0
+    y, r = trace.signals[trace.tracked], trace.r
+    metrics: dict[str, float] = {}
+    if settles:
+        changes = np.nonzero(np.abs(np.diff(r)) > 0)[0]
+        begin = changes[-1] + 1 if len(changes) else 0
+        step = step_metrics(t[begin:], y[begin:], float(y[begin]), float(r[-1]))
+        for name, value in (step or {}).items():
+            metrics[f"{trace.tracked}.{name}"] = value
+    e = r - y
+    for name, value in _integrals(t, e, dt).items():
+        metrics[f"error.{name}"] = value
+    window = slice(None)
+    if error_window:
+        window = (t >= error_window[0] - 1e-12) & (t < error_window[1] - 1e-12)
+    metrics["error.RMS"] = float(np.sqrt(np.mean(e[window] ** 2)))
+    u = trace.u
+    metrics.update({"u.peak_abs": float(np.max(np.abs(u))), "u.rms": float(np.sqrt(np.mean(u ** 2))),
+                    "u.energy": float(np.sum(u ** 2) * dt)})
+    for name, values in trace.signals.items():
+        metrics[f"{name}.max_abs"] = float(np.max(np.abs(values)))
+        if name != trace.tracked and name in _regulated(trace):
+            settling = regulation_settling(t, values)
+            if settling is not None:
+                metrics[f"{name}.SettlingTime"] = settling
+    return metrics
+
+
+def _regulated(trace: Trace) -> set[str]:
+    """Outputs (not inputs, controller states or estimates) that start away from zero."""
+    return {n for n, v in trace.signals.items()
+            if not n.startswith(("xc", "u_")) and not n.endswith("_hat") and v[0] != 0.0}
+
+
+def verdicts(metrics: Mapping[str, float], requirements, controller: str) -> dict[str, dict]:
+    """``{"<requirement>": {"value": v, "pass": bool}}`` of those that apply to ``controller``;
+    a missing metric fails."""
+    result = {}
+    for requirement in (r for r in requirements if r.applies_to(controller)):
+        value = metrics.get(requirement.metric)
+        result[requirement.describe()] = {"metric": requirement.metric, "value": value,
+                                          "max": requirement.max, "min": requirement.min,
+                                          "pass": requirement.check(value)}
+    return result
+
+
+def all_pass(results: Mapping[str, dict]) -> bool:
+    return all(v["pass"] for v in results.values())
+
+
+__all__ = ["Requirement", "all_pass", "compute", "regulation_settling", "step_metrics", "verdicts"]

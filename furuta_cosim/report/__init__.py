@@ -1,0 +1,1 @@
+"""Reports of runs: figures (matplotlib) and, later, regression and tuning reports."""

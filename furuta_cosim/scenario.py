@@ -1,0 +1,368 @@
+"""Scenario files: YAML -> frozen dataclasses, validated strictly.
+
+Every problem is reported at once with its place (``file: timing.control_period: must be
+> 0, got -1``); unknown keys are problems. Names that only the plant FMU knows (variables,
+inputs) and the controllers' fit to the plant are checked when the run is prepared
+(:func:`furuta_cosim.cosim.master.prepare`), also with file and key.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+
+from furuta_cosim import paths
+from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.design.lqr import PAPER_PERIOD
+from furuta_cosim.errors import ConfigError
+
+SIGNAL_KEYS = {
+    "step": ({"time", "amplitude"}, {"initial"}),
+    "sine": ({"amplitude", "period"}, {"phase", "offset", "start"}),
+    "square": ({"amplitude", "period"}, {"duty", "offset", "start"}),
+    "ramp": ({"slope"}, {"start", "initial"}),
+    "constant": ({"value"}, set()),
+    "table": ({"points"}, {"interpolation"}),
+}
+METRIC_BOUNDS = ("max", "min")
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One reference component; a reference is the sum of its components."""
+
+    kind: str
+    params: Mapping[str, object]
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        p = self.params
+        if self.kind == "constant":
+            return np.full_like(t, p["value"])
+        if self.kind == "step":
+            return np.where(t >= p["time"] - 1e-12, p["amplitude"], p.get("initial", 0.0))
+        start = p.get("start", 0.0)
+        active = t >= start - 1e-12
+        if self.kind == "sine":
+            phase = 2 * math.pi * (t - start) / p["period"] + p.get("phase", 0.0)
+            return np.where(active, p.get("offset", 0.0) + p["amplitude"] * np.sin(phase), 0.0)
+        if self.kind == "square":
+            fraction = np.mod((t - start) / p["period"] + 1e-12, 1.0)
+            level = np.where(fraction < p.get("duty", 0.5), p["amplitude"], -p["amplitude"])
+            return np.where(active, p.get("offset", 0.0) + level, 0.0)
+        if self.kind == "ramp":
+            return p.get("initial", 0.0) + np.where(active, p["slope"] * (t - start), 0.0)
+        times, values = (np.array(c) for c in zip(*p["points"]))
+        if p.get("interpolation", "hold") == "linear":
+            return np.interp(t, times, values)
+        index = np.searchsorted(times, t + 1e-12, side="right") - 1
+        return np.where(index >= 0, values[np.clip(index, 0, None)], 0.0)
+
+
+@dataclass(frozen=True)
+class Reference:
+    output: str | None  # None: the plant's default (theta0, or the linear plant's first output)
+    signals: tuple[Signal, ...]
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        total = np.zeros_like(t)
+        for signal in self.signals:
+            total = total + signal(t)
+        return total
+
+    @property
+    def settles(self) -> bool:
+        """True when it ends constant (steps, tables, constants): step metrics apply."""
+        return all(s.kind in ("step", "constant", "table") for s in self.signals)
+
+
+@dataclass(frozen=True)
+class Noise:
+    seed: int
+    process: Mapping[str, float]      # FMU disturbance input -> standard deviation
+    measurement: Mapping[str, float]  # fed-back signal -> standard deviation
+
+
+@dataclass(frozen=True)
+class Pulse:
+    input: str
+    start: float
+    duration: float
+    value: float
+
+
+@dataclass(frozen=True)
+class Requirement:
+    metric: str
+    max: float | None = None
+    min: float | None = None
+    controllers: tuple[str, ...] = ()  # empty: every controller
+
+    def applies_to(self, controller: str) -> bool:
+        return not self.controllers or controller in self.controllers
+
+    def check(self, value: float | None) -> bool:
+        if value is None or not math.isfinite(value):
+            return False
+        return (self.max is None or value <= self.max) and (self.min is None or value >= self.min)
+
+    def describe(self) -> str:
+        bounds = [f"<= {self.max:g}" if self.max is not None else "",
+                  f">= {self.min:g}" if self.min is not None else ""]
+        return f"{self.metric} {' and '.join(b for b in bounds if b)}"
+
+
+@dataclass(frozen=True)
+class Estimator:
+    kind: str
+    measured: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    path: Path | None
+    plant: str
+    overrides: Mapping[str, float]
+    initial: Mapping[str, float]
+    control_input: str | None
+    duration: float
+    control_period: float | None    # None: the plant's sample period, or 2 ms
+    communication_step: float | None  # None: the control period
+    reference: Reference
+    noise: Noise | None
+    disturbances: tuple[Pulse, ...]
+    actuator_limit: float | None
+    controllers: tuple[str, ...]
+    estimator: Estimator | None
+    requirements: tuple[Requirement, ...]
+    error_window: tuple[float, float] | None
+    plot: tuple[str, ...]
+
+    @property
+    def source(self) -> str:
+        return str(self.path) if self.path else self.name
+
+
+def scenario_path(name: str | Path) -> Path:
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return path
+    path = paths.scenarios() / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in paths.scenarios().glob("*.yaml"))
+        raise ConfigError([f"{name}: no such scenario file or name (known: {', '.join(known)})"])
+    return path
+
+
+def load_scenario(name: str | Path) -> Scenario:
+    """Read and validate a scenario file (see the README for every key)."""
+    path = scenario_path(name)
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", required=("plant", "timing", "controllers"),
+                        optional=("name", "description", "reference", "noise", "disturbances",
+                                  "actuator", "estimator", "requirements", "metrics", "plot"))
+    if top is None:
+        check.done()
+    plant, overrides, initial, control_input = _plant(check, top.get("plant"))
+    timing = _timing(check, top.get("timing"))
+    reference = _reference(check, top.get("reference", {"signal": {"type": "constant", "value": 0.0}}))
+    noise = _noise(check, top["noise"]) if "noise" in top else None
+    disturbances = _disturbances(check, top.get("disturbances", []))
+    limit = None
+    if "actuator" in top:
+        actuator = check.mapping(top["actuator"], "actuator", required=("limit",))
+        if actuator and "limit" in actuator:
+            limit = check.number(actuator["limit"], "actuator.limit", positive=True)
+    controllers = _controllers(check, top.get("controllers"))
+    estimator = _estimator(check, top["estimator"]) if "estimator" in top else None
+    requirements = _requirements(check, top.get("requirements", []))
+    window = None
+    if "metrics" in top:
+        metrics = check.mapping(top["metrics"], "metrics", optional=("error_window",))
+        if metrics and "error_window" in metrics:
+            pair = check.vector(metrics["error_window"], "metrics.error_window", 2)
+            if pair and not pair[0] < pair[1]:
+                check.fail("metrics.error_window", f"expected [start, end] with start < end, got {pair}")
+            window = tuple(pair) if pair else None
+    plot = ()
+    if "plot" in top:
+        plot = tuple(check.names(top["plot"], "plot") or ())
+    check.done()
+    return Scenario(str(top.get("name") or path.stem), str(top.get("description", "")), path,
+                    plant, overrides, initial, control_input, *timing, reference, noise,
+                    disturbances, limit, controllers, estimator, requirements, window, plot)
+
+
+def _numbers(check: Checker, value, key: str, **bounds) -> Mapping[str, float]:
+    section = check.mapping(value, key, optional=tuple(value) if isinstance(value, dict) else ())
+    result = {}
+    for name, number in (section or {}).items():
+        number = check.number(number, f"{key}.{name}", **bounds)
+        if number is not None:
+            result[str(name)] = number
+    return MappingProxyType(result)
+
+
+def _plant(check: Checker, value):
+    section = check.mapping(value, "plant", required=("model",),
+                            optional=("overrides", "initial", "control_input"))
+    if not section:
+        return "", MappingProxyType({}), MappingProxyType({}), None
+    model = check.string(section.get("model"), "plant.model") if "model" in section else ""
+    overrides = _numbers(check, section.get("overrides", {}), "plant.overrides")
+    initial = _numbers(check, section.get("initial", {}), "plant.initial")
+    control_input = None
+    if "control_input" in section:
+        control_input = check.string(section["control_input"], "plant.control_input")
+    return model or "", overrides, initial, control_input
+
+
+def _timing(check: Checker, value):
+    section = check.mapping(value, "timing", required=("duration",),
+                            optional=("control_period", "communication_step"))
+    if not section:
+        return 0.0, None, None
+    duration = check.number(section.get("duration"), "timing.duration", positive=True) if "duration" in section else None
+    period = step = None
+    if "control_period" in section:
+        period = check.number(section["control_period"], "timing.control_period", positive=True)
+    if "communication_step" in section:
+        step = check.number(section["communication_step"], "timing.communication_step", positive=True)
+    if period and step:
+        ratio = period / step
+        if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
+            check.fail("timing.control_period", f"must be a whole multiple of "
+                       f"timing.communication_step ({step:g}), got {period:g}")
+    if duration and period and duration < period:
+        check.fail("timing.duration", f"must be at least one control period ({period:g}), got {duration:g}")
+    return duration or 0.0, period, step
+
+
+def _signal(check: Checker, value, key: str) -> Signal | None:
+    if not isinstance(value, dict) or "type" not in value:
+        check.fail(key, f"expected a mapping with a type ({', '.join(SIGNAL_KEYS)})")
+        return None
+    kind = check.string(value["type"], f"{key}.type", tuple(SIGNAL_KEYS))
+    if kind is None:
+        return None
+    required, optional = SIGNAL_KEYS[kind]
+    section = check.mapping(value, key, required=tuple(required) + ("type",), optional=tuple(optional))
+    if section is None:
+        return None
+    params = {}
+    for name in (required | optional) & set(section):
+        if name == "points":
+            points = section["points"]
+            rows = check.matrix(points, f"{key}.points", cols=2) if isinstance(points, list) and points and isinstance(points[0], list) else None
+            if rows is None:
+                if not (isinstance(points, list) and points and isinstance(points[0], list)):
+                    check.fail(f"{key}.points", "expected a list of [time, value] pairs")
+                continue
+            times = [r[0] for r in rows]
+            if any(b <= a for a, b in zip(times, times[1:])):
+                check.fail(f"{key}.points", "times must increase")
+            params["points"] = tuple(tuple(r) for r in rows)
+        elif name == "interpolation":
+            params[name] = check.string(section[name], f"{key}.{name}", ("hold", "linear"))
+        else:
+            positive = name == "period"
+            minimum = 0.0 if name in ("time", "start") else None
+            number = check.number(section[name], f"{key}.{name}", positive=positive, minimum=minimum)
+            if name == "duty" and number is not None and not 0 < number < 1:
+                check.fail(f"{key}.duty", f"must be between 0 and 1, got {number}")
+            params[name] = number
+    return Signal(kind, MappingProxyType(params))
+
+
+def _reference(check: Checker, value) -> Reference:
+    section = check.mapping(value, "reference", required=("signal",), optional=("output",))
+    if not section:
+        return Reference(None, ())
+    output = check.string(section["output"], "reference.output") if "output" in section else None
+    raw = section.get("signal")
+    items = raw if isinstance(raw, list) else [raw]
+    if isinstance(raw, list) and not raw:
+        check.fail("reference.signal", "expected at least one signal")
+    signals = []
+    for k, item in enumerate(items):
+        key = f"reference.signal[{k}]" if isinstance(raw, list) else "reference.signal"
+        signal = _signal(check, item, key)
+        if signal:
+            signals.append(signal)
+    return Reference(output, tuple(signals))
+
+
+def _noise(check: Checker, value) -> Noise | None:
+    section = check.mapping(value, "noise", required=("seed",), optional=("process", "measurement"))
+    if not section:
+        return None
+    seed = check.number(section.get("seed"), "noise.seed", integer=True, minimum=0) if "seed" in section else 0
+    process = _numbers(check, section.get("process", {}), "noise.process", minimum=0.0)
+    measurement = _numbers(check, section.get("measurement", {}), "noise.measurement", minimum=0.0)
+    return Noise(seed or 0, process, measurement)
+
+
+def _disturbances(check: Checker, value) -> tuple[Pulse, ...]:
+    if not isinstance(value, list):
+        check.fail("disturbances", "expected a list of pulses")
+        return ()
+    pulses = []
+    for k, item in enumerate(value):
+        key = f"disturbances[{k}]"
+        section = check.mapping(item, key, required=("input", "start", "duration", "value"))
+        if not section or len(section) < 4:
+            continue
+        name = check.string(section["input"], f"{key}.input")
+        start = check.number(section["start"], f"{key}.start", minimum=0.0)
+        duration = check.number(section["duration"], f"{key}.duration", positive=True)
+        amount = check.number(section["value"], f"{key}.value")
+        if None not in (name, start, duration, amount):
+            pulses.append(Pulse(name, start, duration, amount))
+    return tuple(pulses)
+
+
+def _controllers(check: Checker, value) -> tuple[str, ...]:
+    names = check.names(value, "controllers")
+    if names == []:
+        check.fail("controllers", "expected at least one controller")
+    return tuple(names or ())
+
+
+def _estimator(check: Checker, value) -> Estimator | None:
+    section = check.mapping(value, "estimator", required=("type", "measured"))
+    if not section or len(section) < 2:
+        return None
+    kind = check.string(section["type"], "estimator.type", ("kalman",))
+    measured = check.names(section["measured"], "estimator.measured")
+    if kind and measured:
+        return Estimator(kind, tuple(measured))
+    return None
+
+
+def _requirements(check: Checker, value) -> tuple[Requirement, ...]:
+    if not isinstance(value, list):
+        check.fail("requirements", "expected a list of {metric, max and/or min}")
+        return ()
+    result = []
+    for k, item in enumerate(value):
+        key = f"requirements[{k}]"
+        section = check.mapping(item, key, required=("metric",), optional=METRIC_BOUNDS + ("controllers",))
+        if not section or "metric" not in section:
+            continue
+        metric = check.string(section["metric"], f"{key}.metric")
+        if metric and "." not in metric:
+            check.fail(f"{key}.metric", f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}")
+        bounds = {b: check.number(section[b], f"{key}.{b}") for b in METRIC_BOUNDS if b in section}
+        if not bounds:
+            check.fail(key, "expected a bound: max and/or min")
+        scope = tuple(check.names(section["controllers"], f"{key}.controllers") or ()) if "controllers" in section else ()
+        if metric and bounds and None not in bounds.values():
+            result.append(Requirement(metric, bounds.get("max"), bounds.get("min"), scope))
+    return tuple(result)
