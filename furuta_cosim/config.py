@@ -76,7 +76,7 @@ class Checker:
             self.fail(key, f"must be > 0, got {value}")
             return None
         if minimum is not None and value < minimum:
-            self.fail(key, f"must be >= {minimum}, got {value}")
+            self.fail(key, f"must be >= {minimum:g}, got {value:g}")
             return None
         return int(value) if integer else float(value)
 

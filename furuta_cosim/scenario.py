@@ -170,8 +170,9 @@ def load_scenario(name: str | Path) -> Scenario:
                                   "actuator", "estimator", "requirements", "metrics", "plot"))
     if top is None:
         check.done()
-    plant, overrides, initial, control_input = _plant(check, top.get("plant"))
-    timing = _timing(check, top.get("timing"))
+    plant, overrides, initial, control_input = (_plant(check, top["plant"]) if "plant" in top
+                                                else ("", MappingProxyType({}), MappingProxyType({}), None))
+    timing = _timing(check, top["timing"]) if "timing" in top else (0.0, None, None)
     reference = _reference(check, top.get("reference", {"signal": {"type": "constant", "value": 0.0}}))
     noise = _noise(check, top["noise"]) if "noise" in top else None
     disturbances = _disturbances(check, top.get("disturbances", []))
@@ -180,7 +181,7 @@ def load_scenario(name: str | Path) -> Scenario:
         actuator = check.mapping(top["actuator"], "actuator", required=("limit",))
         if actuator and "limit" in actuator:
             limit = check.number(actuator["limit"], "actuator.limit", positive=True)
-    controllers = _controllers(check, top.get("controllers"))
+    controllers = _controllers(check, top["controllers"]) if "controllers" in top else ()
     estimator = _estimator(check, top["estimator"]) if "estimator" in top else None
     requirements = _requirements(check, top.get("requirements", []))
     window = None
