@@ -191,9 +191,8 @@ def cmd_simulate(args) -> int:
     prepared = prepare(scenario, args.controller)
     started = time.perf_counter()
 
-    def progress(name, k, n):
-        if k == 0:
-            print(f"simulating {scenario.name} with {name}: {n} control steps", file=sys.stderr)
+    def progress(name, steps):
+        print(f"simulating {scenario.name} with {name}: {steps} control steps", file=sys.stderr)
 
     traces = simulate(prepared, progress)
     elapsed = time.perf_counter() - started

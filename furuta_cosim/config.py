@@ -15,9 +15,12 @@ import yaml
 
 from furuta_cosim.errors import ConfigError
 
+# libyaml's safe loader when PyYAML was built with it: the same documents, several times faster
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
 
 def load_yaml(path: str | Path) -> Any:
-    """Parse a YAML file safely; a missing file or a syntax error becomes a ConfigError."""
+    """Parse a YAML file with a safe loader; a missing file or a syntax error becomes a ConfigError."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -26,7 +29,7 @@ def load_yaml(path: str | Path) -> Any:
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
         raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_SAFE_LOADER)  # noqa: S506 (a safe loader)
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else "?"

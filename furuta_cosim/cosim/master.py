@@ -11,13 +11,13 @@ controller meets the same noise.
 from __future__ import annotations
 
 import math
-import operator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
 import control
 import numpy as np
+from fmpy import read_model_description
 
 from furuta_cosim.controllers import ControllerFile, load_controller
 from furuta_cosim.cosim.runtime import RuntimeController, RuntimeEstimator
@@ -28,7 +28,7 @@ from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.linearize import linearize
 from furuta_cosim.fmu.plants import PlantSet, load_plant
-from furuta_cosim.fmu.session import FmuBinary, PlantSession
+from furuta_cosim.fmu.session import PlantSession, state_names
 from furuta_cosim.scenario import Scenario
 
 
@@ -69,9 +69,9 @@ def prepare(scenario: Scenario, controllers: Sequence[str | Path] | None = None)
     except ConfigError as error:
         raise ConfigError([f"{scenario.source}: plant.model: {p}" for p in error.problems]) from None
     fmu = build_fmu(plant)
-    with FmuBinary(fmu) as binary:
-        variables = {v.name: v for v in binary.model_description.modelVariables}
-        states = list(binary.states)
+    description = read_model_description(str(fmu))
+    variables = {v.name: v for v in description.modelVariables}
+    states = state_names(description)
     inputs = [n for n, v in variables.items() if v.causality == "input" and v.type == "Real"]
     outputs = [n for n, v in variables.items() if v.causality == "output"]
     parameters = {n for n, v in variables.items() if v.causality == "parameter"}
@@ -217,8 +217,55 @@ def _kalman(prepared: Prepared) -> RuntimeEstimator:
     return RuntimeEstimator(Ad, Bd[:, :1], Cm, M)
 
 
-def run(prepared: Prepared, plant: PlantSession, index: int,
-        progress: Callable[[int, int], None] | None = None) -> Trace:
+def _loop_source(n_sources: int, pick: tuple | None, noisy: tuple, estimator: bool,
+                 record_state: bool, limited: bool, n_disturbances: int, substeps: int) -> str:
+    """The sample loop for one configuration, as Python source: branches and index lookups
+    are decided here, once, instead of at every one of the thousands of samples."""
+    signal = [f"values[{i}]" for i in (pick if pick is not None else range(n_sources))]
+    for position, j in enumerate(noisy):
+        signal[j] += f" + m[{position}]"
+    body = []
+    if noisy:
+        body.append("m = measurement[k]")
+    body.append(f"s = [{', '.join(signal)}]" if pick is not None or noisy else "s = values")
+    if estimator:
+        body += ["s = correct(s)", "estimates(s)"]
+    if record_state:
+        body.append("states(state())")
+    body.append("c = control(s, rbar[k])")
+    if limited:
+        body += ["u = c if -limit <= c <= limit else (limit if c > 0 else -limit)", "commands(c)"]
+    else:
+        body.append("u = c")
+    if estimator:
+        body.append("predict(u)")
+    body += ["rows(values)", "inputs(u)"]
+    if n_disturbances:
+        body.append("d = disturbance[k]")
+    applied = "[u" + "".join(f", d[{j}]" for j in range(n_disturbances)) + "]"
+    if substeps == 1:
+        body.append(f"values = step({applied}, h)")
+    else:
+        body += [f"applied = {applied}", f"for _ in range({substeps}):", "    values = step(applied, h)"]
+    lines = ["def loop(step, control, state, correct, predict, rbar, measurement, disturbance,",
+             "         h, steps, values, limit, rows, inputs, commands, states, estimates):",
+             "    for k in range(steps):"]
+    lines += [f"        {line}" for line in body]
+    return "\n".join(lines) + "\n"
+
+
+_LOOPS: dict = {}
+
+
+def _loop(*configuration):
+    if configuration not in _LOOPS:
+        namespace: dict = {}
+        exec(compile(_loop_source(*configuration), "<furuta-cosim loop>", "exec"), namespace)  # noqa: S102
+        _LOOPS[configuration] = namespace["loop"]
+    return _LOOPS[configuration]
+
+
+def run(prepared: Prepared, plant: PlantSession, index: int) -> Trace:
     """One controller through the whole scenario on an open session (reset here)."""
     cfile, controller = prepared.controllers[index]
     scenario = prepared.scenario
@@ -226,49 +273,31 @@ def run(prepared: Prepared, plant: PlantSession, index: int,
     plant.set_io([prepared.control_input] + prepared.process_inputs, prepared.outputs)
     controller.reset()
     outputs = prepared.outputs
-    values = plant.get(outputs)
     estimator = prepared.estimator
-    sources = prepared.measured if estimator else prepared.feedback
-    pick = operator.itemgetter(*[outputs.index(n) for n in sources])
-    noise_index = [sources.index(n) for n in prepared.noisy]
-    measurement = prepared.measurement_noise.tolist()
-    disturbance = prepared.disturbance.tolist()
-    rbar = prepared.rbar.tolist()
-    limit = scenario.actuator_limit or math.inf
-    substeps = int(round(prepared.control_period / prepared.communication_step))
-    h = prepared.communication_step
-    step, control_law, state = plant.step, controller.control, controller.state
-    record_state = controller.n_xc > 0
-    rows, us, commands, xcs, estimates = [], [], [], [], []
     if estimator:
         estimator.reset()
-    for k in range(prepared.steps):
-        signals = list(pick(values)) if len(sources) > 1 else [pick(values)]
-        for j, noise in zip(noise_index, measurement[k]):
-            signals[j] += noise
-        if estimator:
-            signals = estimator.correct(signals)
-            estimates.append(signals)
-        if record_state:
-            xcs.append(state())
-        command = control_law(signals, rbar[k])
-        u = command if -limit <= command <= limit else math.copysign(limit, command)
-        if estimator:
-            estimator.predict(u)
-        rows.append(values)
-        us.append(u)
-        commands.append(command)
-        inputs = [u, *disturbance[k]]
-        for _ in range(substeps):
-            values = step(inputs, h)
-        if progress and k % 1000 == 0:
-            progress(k, prepared.steps)
+    sources = prepared.measured if estimator else prepared.feedback
+    pick = [outputs.index(n) for n in sources]
+    if pick == list(range(len(outputs))):
+        pick = None
+    limit = scenario.actuator_limit
+    substeps = int(round(prepared.control_period / prepared.communication_step))
+    loop = _loop(len(sources), pick and tuple(pick), tuple(sources.index(n) for n in prepared.noisy), bool(estimator),
+                 controller.n_xc > 0, bool(limit), len(prepared.process_inputs), substeps)
+    rows, us, commands, xcs, estimates = [], [], [], [], []
+    loop(plant.step, controller.control, controller.state,
+         estimator.correct if estimator else None, estimator.predict if estimator else None,
+         prepared.rbar.tolist(),
+         prepared.measurement_noise.tolist() if prepared.noisy else None,
+         prepared.disturbance.tolist() if prepared.process_inputs else None,
+         prepared.communication_step, prepared.steps, plant.get(outputs), limit or 0.0,
+         rows.append, us.append, commands.append, xcs.append, estimates.append)
     signals = {name: column for name, column in zip(outputs, np.array(rows).T)}
-    if scenario.actuator_limit:
+    if limit:
         signals["u_command"] = np.array(commands)
-    for j, column in enumerate(np.array(xcs).T if record_state else []):
+    for j, column in enumerate(np.array(xcs).T if xcs else []):
         signals[f"xc{j + 1}"] = column
-    for j, column in enumerate(np.array(estimates).T if estimator else []):
+    for j, column in enumerate(np.array(estimates).T if estimates else []):
         signals[f"{prepared.feedback[j]}_hat"] = column
     for j, name in enumerate(prepared.process_inputs):
         signals[name] = prepared.disturbance[:, j]
@@ -276,14 +305,18 @@ def run(prepared: Prepared, plant: PlantSession, index: int,
                  prepared.control_input)
 
 
-def simulate(prepared: Prepared, progress: Callable[[str, int, int], None] | None = None) -> dict[str, Trace]:
-    """Every controller of the prepared scenario, on one FMU instance."""
+def simulate(prepared: Prepared, progress: Callable[[str, int], None] | None = None) -> dict[str, Trace]:
+    """Every controller of the prepared scenario, on one FMU instance.
+
+    ``progress(controller, steps)`` is called before each run.
+    """
     traces = {}
     with PlantSession.open(prepared.fmu) as plant:
         for index, (cfile, _) in enumerate(prepared.controllers):
-            report = (lambda k, n, name=cfile.name: progress(name, k, n)) if progress else None
+            if progress:
+                progress(cfile.name, prepared.steps)
             try:
-                traces[cfile.name] = run(prepared, plant, index, report)
+                traces[cfile.name] = run(prepared, plant, index)
             except FmuError as error:
                 raise FmuError(f"{prepared.scenario.source}: controller {cfile.name}: {error}") from None
     return traces

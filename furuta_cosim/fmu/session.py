@@ -85,6 +85,13 @@ def _step_helper():
 _ERROR = 3  # fmi2Error; fmi2Discard (2) is treated as an error too: nothing here retries
 
 
+def state_names(model_description: ModelDescription) -> list[str]:
+    """The plant's states: the outputs ``x`` that have a start parameter ``x_start``."""
+    names = {v.name for v in model_description.modelVariables}
+    return [v.name for v in model_description.modelVariables
+            if v.causality == "output" and f"{v.name}_start" in names]
+
+
 class FmuBinary:
     """An extracted FMU with its shared library loaded; shared by the sessions on it."""
 
@@ -107,9 +114,7 @@ class FmuBinary:
                            f"(rebuild it from sources/ with 'fmpy compile')")
         self.lib = _FFI.dlopen(str(library))
         self.variables = {v.name: v for v in md.modelVariables}
-        # states are the outputs that have a start parameter "<name>_start"
-        self.states = [v.name for v in md.modelVariables
-                       if v.causality == "output" and f"{v.name}_start" in self.variables]
+        self.states = state_names(md)
 
     def variable(self, name: str):
         try:
