@@ -201,8 +201,9 @@ def cmd_simulate(args) -> int:
     for name, trace in traces.items():
         metrics = compute(trace, scenario.reference.settles, scenario.error_window)
         checks = verdicts(metrics, scenario.requirements, name)
-        passed &= all_pass(checks)
-        results[name] = {"metrics": {k: _finite(v) for k, v in metrics.items()},
+        passed &= all_pass(checks) and not trace.failure
+        results[name] = {"failure": trace.failure,
+                         "metrics": {k: _finite(v) for k, v in metrics.items()},
                          "requirements": {k: {**v, "value": _finite(v["value"])} for k, v in checks.items()},
                          "trace": str(trace.to_csv(out / f"{name}.csv"))}
     unit = "samples" if prepared.plant.linear and prepared.plant.linear.discrete else "s"
@@ -239,6 +240,8 @@ def _print_table(scenario, traces, results) -> None:
             cells.append(f"{'never' if value is None else value if value == '' else format(value, '.4g'):>16}")
         print(f"{key:{width}s}  " + "  ".join(cells))
     for name in names:
+        if results[name]["failure"]:
+            print(f"FAIL  {name}: the run {results[name]['failure']}")
         for text, verdict in results[name]["requirements"].items():
             value = verdict["value"]
             shown = "no finite value" if value is None else format(value, ".6g")

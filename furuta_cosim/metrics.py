@@ -99,6 +99,9 @@ def compute(trace: Trace, settles: bool = True, error_window=None) -> dict[str, 
             settling = regulation_settling(t, values)
             if settling is not None:
                 metrics[f"{name}.SettlingTime"] = settling
+    if trace.failure:
+        # a run that stopped early never settled, whatever its last samples show
+        metrics.update({k: math.inf for k in metrics if k.endswith(("SettlingTime", "RiseTime"))})
     return metrics
 
 

@@ -160,3 +160,15 @@ def test_simulate_cli_runs_a_controller_given_on_the_command_line(tmp_path, caps
     assert main(["simulate", "paper-step", "--controller", "lqr-paper", "-o", str(tmp_path), "--json"]) == 0
     document = json.loads(capsys.readouterr().out)
     assert list(document["controllers"]) == ["lqr-paper"] and document["passed"]
+
+
+def test_a_diverging_run_keeps_its_samples_and_the_others(tmp_path, capsys):
+    assert main(["simulate", "noise-kalman", "-o", str(tmp_path), "--json"]) == 1
+    document = json.loads(capsys.readouterr().out)
+    lqr, bo = document["controllers"]["lqr-paper"], document["controllers"]["bo-paper"]
+    assert lqr["failure"] is None and all(v["pass"] for v in lqr["requirements"].values())
+    assert bo["failure"].startswith("stopped at t = ") and "diverg" in bo["failure"]
+    assert bo["metrics"]["theta1.SettlingTime"] is None  # never settled
+    kept = Trace.from_csv(tmp_path / "bo-paper.csv", "bo-paper", "theta0")
+    assert 100 < len(kept.t) < 5000 and np.all(np.isfinite(kept.u))
+    assert not document["passed"]

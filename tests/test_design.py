@@ -145,3 +145,16 @@ def test_shipped_lqr_file_is_the_fresh_design(printed):
     shipped = load_controller("lqr-paper")
     np.testing.assert_allclose(shipped.controller.K, lqr(printed, period=2e-3).K, rtol=1e-12)
     assert shipped.period == 2e-3 and shipped.controller.discrete
+
+
+def test_a_two_state_controller_closes_a_seven_state_loop(printed):
+    K = lqr(printed).K
+    c = GeneralizedController([[-50.0, 1.0], [0.0, -80.0]], np.zeros((2, 5)), [[0.1, 0.2]], K)
+    Abar, Bbar = augmented(printed, c)
+    assert Abar.shape == (7, 7) and Bbar.shape == (7, 1)
+    analysis = analyze(printed, c)
+    assert analysis.stable and analysis.controller_stable
+    np.testing.assert_allclose(sorted(analysis.controller_eigenvalues.real), [-80.0, -50.0])
+    # Bc = 0: the loop's eigenvalues are those of A - B Dc and of Ac (FINDINGS.md 3)
+    expected = np.concatenate([np.linalg.eigvals(printed.A - printed.B @ K), [-50.0, -80.0]])
+    np.testing.assert_allclose(np.sort_complex(analysis.eigenvalues), np.sort_complex(expected), rtol=1e-9)

@@ -285,13 +285,21 @@ def run(prepared: Prepared, plant: PlantSession, index: int) -> Trace:
     loop = _loop(len(sources), pick and tuple(pick), tuple(sources.index(n) for n in prepared.noisy), bool(estimator),
                  controller.n_xc > 0, bool(limit), len(prepared.process_inputs), substeps)
     rows, us, commands, xcs, estimates = [], [], [], [], []
-    loop(plant.step, controller.control, controller.state,
-         estimator.correct if estimator else None, estimator.predict if estimator else None,
-         prepared.rbar.tolist(),
-         prepared.measurement_noise.tolist() if prepared.noisy else None,
-         prepared.disturbance.tolist() if prepared.process_inputs else None,
-         prepared.communication_step, prepared.steps, plant.get(outputs), limit or 0.0,
-         rows.append, us.append, commands.append, xcs.append, estimates.append)
+    failure = None
+    try:
+        loop(plant.step, controller.control, controller.state,
+             estimator.correct if estimator else None, estimator.predict if estimator else None,
+             prepared.rbar.tolist(),
+             prepared.measurement_noise.tolist() if prepared.noisy else None,
+             prepared.disturbance.tolist() if prepared.process_inputs else None,
+             prepared.communication_step, prepared.steps, plant.get(outputs), limit or 0.0,
+             rows.append, us.append, commands.append, xcs.append, estimates.append)
+    except FmuError as error:
+        # the plant gave up (a diverging loop): keep the samples up to that point
+        peak = max(map(abs, us)) if us else 0.0
+        failure = (f"stopped at t = {prepared.t[len(us) - 1]:.6g} with the loop diverging "
+                   f"(peak |u| {peak:.3g}): {error}")
+    n = len(us)
     signals = {name: column for name, column in zip(outputs, np.array(rows).T)}
     if limit:
         signals["u_command"] = np.array(commands)
@@ -300,9 +308,9 @@ def run(prepared: Prepared, plant: PlantSession, index: int) -> Trace:
     for j, column in enumerate(np.array(estimates).T if estimates else []):
         signals[f"{prepared.feedback[j]}_hat"] = column
     for j, name in enumerate(prepared.process_inputs):
-        signals[name] = prepared.disturbance[:, j]
-    return Trace(cfile.name, prepared.t, prepared.rbar, np.array(us), signals, prepared.tracked,
-                 prepared.control_input)
+        signals[name] = prepared.disturbance[:n, j]
+    return Trace(cfile.name, prepared.t[:n], prepared.rbar[:n], np.array(us), signals,
+                 prepared.tracked, prepared.control_input, failure)
 
 
 def simulate(prepared: Prepared, progress: Callable[[str, int], None] | None = None) -> dict[str, Trace]:

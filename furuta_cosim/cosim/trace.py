@@ -20,6 +20,7 @@ class Trace:
     signals: dict[str, np.ndarray]
     tracked: str
     input_name: str = "u"
+    failure: str | None = None  # why the run stopped early; the trace holds what came before
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name in ("t", "r", "u"):
