@@ -37,6 +37,18 @@ def load_yaml(path: str | Path) -> Any:
         raise ConfigError([f"{path}: {where}: invalid YAML ({reason})"]) from None
 
 
+def resolve_file(name: str | Path, folder: Path, kind: str) -> Path:
+    """A path as given, or ``<folder>/<name>.yaml``; ConfigError listing the known names."""
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return path
+    path = folder / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in folder.glob("*.yaml"))
+        raise ConfigError([f"{name}: no such {kind} file or name (known: {', '.join(known)})"])
+    return path
+
+
 class Checker:
     """Collects the problems of one file; each method returns None for a bad value."""
 

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from furuta_cosim import __version__, paths
-from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.design.controller import GeneralizedController
 from furuta_cosim.design.linear import LinearModel
 from furuta_cosim.design.prefilter import prefilter
@@ -53,14 +53,7 @@ class ControllerFile:
 
 
 def controller_path(name: str | Path) -> Path:
-    path = Path(name)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return path
-    path = paths.scenarios() / "controllers" / f"{name}.yaml"
-    if not path.is_file():
-        known = sorted(p.stem for p in (paths.scenarios() / "controllers").glob("*.yaml"))
-        raise ConfigError([f"{name}: no such controller file or name (known: {', '.join(known)})"])
-    return path
+    return resolve_file(name, paths.scenarios() / "controllers", "controller")
 
 
 def load_controller(name: str | Path) -> ControllerFile:

@@ -17,7 +17,7 @@ from typing import Mapping
 import numpy as np
 
 from furuta_cosim import paths
-from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.design.lqr import PAPER_PERIOD
 from furuta_cosim.errors import ConfigError
 
@@ -150,14 +150,7 @@ class Scenario:
 
 
 def scenario_path(name: str | Path) -> Path:
-    path = Path(name)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return path
-    path = paths.scenarios() / f"{name}.yaml"
-    if not path.is_file():
-        known = sorted(p.stem for p in paths.scenarios().glob("*.yaml"))
-        raise ConfigError([f"{name}: no such scenario file or name (known: {', '.join(known)})"])
-    return path
+    return resolve_file(name, paths.scenarios(), "scenario")
 
 
 def load_scenario(name: str | Path) -> Scenario:

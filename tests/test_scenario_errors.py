@@ -56,7 +56,7 @@ CASES = {
                       "plant.initial.theta7: not a state (states: theta0, dtheta0, theta1, dtheta1, i)"),
     "unknown-parameter": (edit("initial: {theta1: 0.1}", "overrides: {mass: 1}"),
                           "plant.overrides.mass: not a parameter of paper-calibrated"),
-    "unknown-plant": (edit("model: furuta", "model: segway"), "plant.model: segway: no such plant file or plant name"),
+    "unknown-plant": (edit("model: furuta", "model: segway"), "plant.model: segway: no such plant file or name"),
     "nan-initial": (edit("theta1: 0.1", "theta1: .nan"), "plant.initial.theta1: must be finite, got nan"),
     "unknown-controller": (edit("[lqr-paper]", "[lqr-papr]"),
                            "controllers[0]: lqr-papr: no such controller file or name"),

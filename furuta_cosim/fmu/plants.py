@@ -10,7 +10,7 @@ from types import MappingProxyType
 from typing import Mapping
 
 from furuta_cosim import paths
-from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.errors import ConfigError
 
 
@@ -47,19 +47,12 @@ class PlantSet:
 
 def plant_path(name: str | Path) -> Path:
     """A file path, a plant name in ``scenarios/plants``, or a model's default set."""
-    path = Path(name)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return path
-    model_dir = paths.fmu_sources() / str(name)
-    if (model_dir / "model.py").is_file():
-        default = _default_set(model_dir / "model.py")
+    model_py = paths.fmu_sources() / str(name) / "model.py"
+    if Path(name).suffix not in (".yaml", ".yml") and model_py.is_file():
+        default = _default_set(model_py)
         if default:
-            return paths.scenarios() / "plants" / f"{default}.yaml"
-    path = paths.scenarios() / "plants" / f"{name}.yaml"
-    if not path.is_file():
-        known = sorted(p.stem for p in (paths.scenarios() / "plants").glob("*.yaml"))
-        raise ConfigError([f"{name}: no such plant file or plant name (known: {', '.join(known)})"])
-    return path
+            name = default
+    return resolve_file(name, paths.scenarios() / "plants", "plant")
 
 
 def _default_set(model_py: Path) -> str | None:
