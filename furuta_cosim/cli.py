@@ -69,7 +69,8 @@ def _pairs(values) -> list:
     return [[float(z.real), float(z.imag)] for z in values]
 
 
-def _model_problem(model_name: str, error) -> "ConfigError":
+def _model_problem(model_name: str, error):
+    """The model file (or name) and its A, B keys, for a design problem of the model itself."""
     from furuta_cosim.errors import ConfigError
     from furuta_cosim.fmu.plants import plant_path
 

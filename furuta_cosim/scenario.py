@@ -18,8 +18,6 @@ import numpy as np
 
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, load_yaml, resolve_file
-from furuta_cosim.design.lqr import PAPER_PERIOD
-from furuta_cosim.errors import ConfigError
 
 SIGNAL_KEYS = {
     "step": ({"time", "amplitude"}, {"initial"}),

@@ -1,6 +1,5 @@
 """The pendulum FMU runs unchanged in Ecos (a C++ engine no one here wrote) and in fmpy."""
 
-import numpy as np
 
 from furuta_cosim.fmu.check import ecos_available, relative_difference, run_ecos, run_fmpy
 

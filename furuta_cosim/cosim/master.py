@@ -100,7 +100,7 @@ def prepare(scenario: Scenario, controllers: Sequence[str | Path] | None = None)
     for pulse in scenario.disturbances:
         if pulse.input not in process:
             process.append(pulse.input)
-    for k, name in enumerate(process):
+    for name in process:
         if name not in inputs or name == control_input:
             key = (f"noise.process.{name}" if scenario.noise and name in scenario.noise.process
                    else f"disturbances[{[p.input for p in scenario.disturbances].index(name)}].input")

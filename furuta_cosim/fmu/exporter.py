@@ -23,7 +23,7 @@ import fmpy
 
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
-from furuta_cosim.fmu.declaration import Integer, Model
+from furuta_cosim.fmu.declaration import Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 
 GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
