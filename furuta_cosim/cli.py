@@ -249,13 +249,34 @@ def _print_table(scenario, traces, results) -> None:
             print(f"{'PASS' if verdict['pass'] else 'FAIL'}  {name}: {text} (got {shown})")
 
 
+def cmd_list(args) -> int:
+    from furuta_cosim import paths
+    from furuta_cosim.config import load_yaml
+
+    folders = [("plants", paths.scenarios() / "plants"), ("controllers", paths.scenarios() / "controllers"),
+               ("scenarios", paths.scenarios())]
+    for title, folder in folders:
+        print(f"{title}:")
+        for path in sorted(folder.glob("*.yaml")):
+            data = load_yaml(path)
+            text = data.get("description", "") if isinstance(data, dict) else ""
+            print(f"  {path.stem:18s} {text}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from furuta_cosim.design.lqr import PAPER_PERIOD
 
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
         description="Co-simulation toolchain for the Furuta pendulum and other underactuated plants.")
+    from furuta_cosim import __version__
+
+    parser.add_argument("--version", action="version", version=f"furuta-cosim {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = commands.add_parser("list", help="the shipped plants, controllers and scenarios")
+    p.set_defaults(handler=cmd_list)
 
     p = commands.add_parser("build-fmu", help="build a plant FMU (cached) and print its path")
     p.add_argument("model", nargs="?", default="furuta",

@@ -94,3 +94,12 @@ def test_bad_period_and_weights_exit_2(capsys):
     assert code == 2 and err.strip() == "error: --period: must be > 0, got 0.0"
     code, _, err = run(capsys, "design", "lqr", "--Q", "1", "2")
     assert code == 2 and "--Q: expected 5 diagonal values or 25 entries, got 2" in err
+
+
+def test_list_shows_every_shipped_file_with_its_description(capsys):
+    code, out, _ = run(capsys, "list")
+    assert code == 0
+    for name in ("paper-calibrated", "table-literal", "toy", "paper-printed", "lqr-paper", "bo-paper",
+                 "toy-classical", "toy-generalized", "paper-step", "noise-kalman", "toy-sine"):
+        assert f"  {name} " in out
+    assert "the paper's BO-tuned generalized controller" in out
