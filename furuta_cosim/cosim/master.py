@@ -17,7 +17,6 @@ from typing import Callable, Sequence
 
 import control
 import numpy as np
-from fmpy import read_model_description
 
 from furuta_cosim.controllers import ControllerFile, load_controller
 from furuta_cosim.cosim.runtime import RuntimeController, RuntimeEstimator
@@ -28,7 +27,7 @@ from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.linearize import linearize
 from furuta_cosim.fmu.plants import PlantSet, load_plant
-from furuta_cosim.fmu.session import PlantSession, state_names
+from furuta_cosim.fmu.session import PlantSession, model_description, state_names
 from furuta_cosim.scenario import Scenario
 
 
@@ -69,7 +68,7 @@ def prepare(scenario: Scenario, controllers: Sequence[str | Path] | None = None)
     except ConfigError as error:
         raise ConfigError([f"{scenario.source}: plant.model: {p}" for p in error.problems]) from None
     fmu = build_fmu(plant)
-    description = read_model_description(str(fmu))
+    description = model_description(fmu)
     variables = {v.name: v for v in description.modelVariables}
     states = state_names(description)
     inputs = [n for n, v in variables.items() if v.causality == "input" and v.type == "Real"]

@@ -244,6 +244,33 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
     """
     if not isinstance(plant, PlantSet):
         plant = load_plant(plant)
+    memo = repr((plant.model, sorted(plant.parameters.items()), plant.linear,
+                 _source_stamps(plant.model), paths.cache()))
+    target = _BUILT.get(memo)
+    if target is None or not target.is_file():
+        target = _build_cached(plant, log)
+        _BUILT[memo] = target
+    if output is not None:
+        output = Path(output)
+        if output.is_dir() or output.suffix != ".fmu":
+            output = output / f"{target.name.rsplit('-', 1)[0]}.fmu"  # <Identifier>.fmu
+        output.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(target, output)
+        return output
+    return target
+
+
+# in-process memo: a scenario prepared a thousand times hashes its FMU once
+_BUILT: dict[str, Path] = {}
+
+
+def _source_stamps(model: str) -> tuple:
+    files = [*(paths.fmu_sources() / "common").iterdir(), *(paths.fmu_sources() / model).iterdir()]
+    return tuple(sorted((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files if f.is_file()))
+
+
+def _build_cached(plant: PlantSet, log) -> Path:
+    """The FMU of ``plant`` in the cache, built there if it is not."""
     model = declaration(plant)
     model_dir = paths.fmu_sources() / plant.model
     common = paths.fmu_sources() / "common"
@@ -264,13 +291,6 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
             log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
         files["model_vars.h"] = generate_header(model, guid)
         _build(model, files, guid, compiler, target)
-    if output is not None:
-        output = Path(output)
-        if output.is_dir() or output.suffix != ".fmu":
-            output = output / f"{model.identifier}.fmu"
-        output.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(target, output)
-        return output
     return target
 
 

@@ -13,8 +13,11 @@ wrappers cost several times the model's own step (see ``tools/bench_fmu.py``).
 
 from __future__ import annotations
 
+import functools
 import math
 import shutil
+import tempfile
+import zipfile
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -85,6 +88,33 @@ def _step_helper():
 _ERROR = 3  # fmi2Error; fmi2Discard (2) is treated as an error too: nothing here retries
 
 
+@functools.lru_cache(maxsize=64)
+def _read(path: str, stamp: tuple) -> ModelDescription:
+    try:
+        return fmpy.read_model_description(path)
+    except Exception as error:  # fmpy raises bare Exceptions for malformed FMUs
+        raise FmuError(f"{path}: cannot read modelDescription.xml: {error}") from None
+
+
+def model_description(fmu: str | Path) -> ModelDescription:
+    """The FMU's model description, read once per file version in this process (do not modify)."""
+    status = Path(fmu).stat()
+    return _read(str(fmu), (status.st_mtime_ns, status.st_size))
+
+
+def _extract(fmu: Path) -> Path:
+    """Unzip what an importer needs (the platform binary and resources) into a new folder."""
+    folder = Path(tempfile.mkdtemp(prefix="furuta-cosim-fmu-"))
+    wanted = (f"binaries/{fmpy.platform}/", "resources/")
+    try:
+        with zipfile.ZipFile(fmu) as archive:
+            archive.extractall(folder, [n for n in archive.namelist() if n.startswith(wanted)])
+    except (zipfile.BadZipFile, OSError) as error:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise FmuError(f"{fmu}: cannot be extracted: {error}") from None
+    return folder
+
+
 def state_names(model_description: ModelDescription) -> list[str]:
     """The plant's states: the outputs ``x`` that have a start parameter ``x_start``."""
     names = {v.name for v in model_description.modelVariables}
@@ -99,14 +129,10 @@ class FmuBinary:
         self.path = Path(fmu)
         if not self.path.is_file():
             raise FmuError(f"{self.path}: no such FMU")
-        try:
-            self.model_description: ModelDescription = fmpy.read_model_description(str(self.path))
-        except Exception as error:  # fmpy raises bare Exceptions for malformed FMUs
-            raise FmuError(f"{self.path}: cannot read modelDescription.xml: {error}") from None
-        md = self.model_description
+        self.model_description = md = model_description(self.path)
         interface = md.coSimulation or md.modelExchange
         self.identifier = interface.modelIdentifier
-        self.directory = Path(fmpy.extract(str(self.path)))
+        self.directory = _extract(self.path)
         library = self.directory / "binaries" / fmpy.platform / f"{self.identifier}{fmpy.sharedLibraryExtension}"
         if not library.is_file():
             shutil.rmtree(self.directory, ignore_errors=True)
