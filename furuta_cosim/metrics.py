@@ -17,7 +17,7 @@ Keys are ``<signal>.<metric>``:
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import control
 import numpy as np
@@ -111,7 +111,8 @@ def _regulated(trace: Trace) -> set[str]:
             if not n.startswith(("xc", "u_")) and not n.endswith("_hat") and v[0] != 0.0}
 
 
-def verdicts(metrics: Mapping[str, float], requirements, controller: str) -> dict[str, dict]:
+def verdicts(metrics: Mapping[str, float], requirements: Sequence[Requirement],
+             controller: str) -> dict[str, dict]:
     """``{"<requirement>": {"value": v, "pass": bool}}`` of those that apply to ``controller``;
     a missing metric fails."""
     result = {}
@@ -126,5 +127,3 @@ def verdicts(metrics: Mapping[str, float], requirements, controller: str) -> dic
 def all_pass(results: Mapping[str, dict]) -> bool:
     return all(v["pass"] for v in results.values())
 
-
-__all__ = ["Requirement", "all_pass", "compute", "regulation_settling", "step_metrics", "verdicts"]
