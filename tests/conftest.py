@@ -1,6 +1,7 @@
 """Shared fixtures. FMUs are built into a fresh cache per test run, as on a new machine."""
 
 import os
+import shutil
 import tempfile
 
 # before any furuta_cosim import reads it: every test run builds its FMUs from the sources
@@ -11,6 +12,10 @@ import pytest  # noqa: E402
 from furuta_cosim.fmu.exporter import build_fmu  # noqa: E402
 
 STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
+
+
+def pytest_sessionfinish(session, exitstatus):
+    shutil.rmtree(os.environ["FURUTA_COSIM_CACHE"], ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

@@ -1,9 +1,11 @@
 """The exporter: valid FMUs, every fmi2 symbol, hidden internals, complete sources, cache."""
 
 import ctypes
+import os
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -74,8 +76,10 @@ def test_fmpy_compile_rebuilds_from_sources(tmp_path, furuta_fmu):
         for item in source.infolist():
             if not item.filename.startswith("binaries/"):
                 target.writestr(item, source.read(item))
+    # fmpy compile calls cmake: the one the test extra installs beside this Python comes first
+    env = {**os.environ, "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ["PATH"]])}
     result = subprocess.run([sys.executable, "-m", "fmpy", "compile", str(stripped),
-                             "--all-warnings", "--warning-as-error"], capture_output=True, text=True)
+                             "--all-warnings", "--warning-as-error"], capture_output=True, text=True, env=env)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "binaries/linux64/Furuta.so" in zipfile.ZipFile(stripped).namelist()
     assert validate_fmu(str(stripped)) == []
