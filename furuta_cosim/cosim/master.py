@@ -18,7 +18,7 @@ from typing import Callable, Sequence
 import control
 import numpy as np
 
-from furuta_cosim.controllers import ControllerFile, load_controller
+from furuta_cosim.controllers import ControllerFile, check_fits, load_controller
 from furuta_cosim.cosim.runtime import RuntimeController, RuntimeEstimator
 from furuta_cosim.cosim.trace import Trace
 from furuta_cosim.design.controller import discretize_controller
@@ -27,6 +27,7 @@ from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.linearize import linearize
 from furuta_cosim.fmu.plants import PlantSet, load_plant
+from furuta_cosim.models import load_model
 from furuta_cosim.fmu.session import PlantSession, model_description, state_names
 from furuta_cosim.scenario import Scenario
 
@@ -182,9 +183,6 @@ def _runtime(scenario, key, name, states, tracked, period):
             raise _fail(scenario, key, f"{cfile.source}: prefilter.output: {cfile.tracked_output} "
                         f"differs from the scenario's reference.output {tracked}")
         if cfile.F is None:
-            from furuta_cosim.controllers import check_fits
-            from furuta_cosim.models import load_model
-
             cfile = check_fits(cfile, load_model(cfile.model or scenario.plant))
         F = cfile.F
     return cfile, RuntimeController(discretize_controller(c, period), F)

@@ -75,7 +75,7 @@ void* calloc(size_t, size_t);
 void free(void*);
 """)
 _LIBC = _FFI.dlopen(None)
-_HELPER = None
+_HELPER = None  # the loaded step_io helper; False when it cannot be built
 
 
 def _step_helper():
@@ -85,6 +85,8 @@ def _step_helper():
         path = build_helper(Path(__file__).parent / "_c" / "step_io.c")
         _HELPER = _FFI.dlopen(str(path)) if path else False
     return _HELPER or None
+
+
 _ERROR = 3  # fmi2Error; fmi2Discard (2) is treated as an error too: nothing here retries
 
 
