@@ -183,7 +183,10 @@ def _runtime(scenario, key, name, states, tracked, period):
             raise _fail(scenario, key, f"{cfile.source}: prefilter.output: {cfile.tracked_output} "
                         f"differs from the scenario's reference.output {tracked}")
         if cfile.F is None:
-            cfile = check_fits(cfile, load_model(cfile.model or scenario.plant))
+            try:
+                cfile = check_fits(cfile, load_model(cfile.model or scenario.plant))
+            except ConfigError as error:
+                raise ConfigError([f"{scenario.source}: {key}: {p}" for p in error.problems]) from None
         F = cfile.F
     return cfile, RuntimeController(discretize_controller(c, period), F)
 
