@@ -183,23 +183,23 @@ def cmd_simulate(args) -> int:
     import time
     from pathlib import Path
 
-    from furuta_cosim.cosim.master import prepare, simulate
+    from furuta_cosim.cosim.master import prepare, runs
     from furuta_cosim.metrics import all_pass, compute, verdicts
     from furuta_cosim.report.figures import plot_runs
     from furuta_cosim.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
     prepared = prepare(scenario, args.controller)
-    started = time.perf_counter()
-
-    def progress(name, steps):
-        print(f"simulating {scenario.name} with {name}: {steps} control steps", file=sys.stderr)
-
-    traces = simulate(prepared, progress)
-    elapsed = time.perf_counter() - started
     out = Path(args.output or Path("out") / scenario.name)
-    results, passed = {}, True
-    for name, trace in traces.items():
+    started = time.perf_counter()
+    traces, results, passed = {}, {}, True
+    names = [cfile.name for cfile, _ in prepared.controllers]
+    print(f"simulating {scenario.name}: {prepared.steps} control steps each for "
+          f"{', '.join(names)}", file=sys.stderr)
+    for trace in runs(prepared):
+        # each trace is written as soon as its run ends: nothing is lost if a later run fails
+        name = trace.controller
+        traces[name] = trace
         metrics = compute(trace, scenario.reference.settles, scenario.error_window)
         checks = verdicts(metrics, scenario.requirements, name)
         passed &= all_pass(checks) and not trace.failure
@@ -207,6 +207,9 @@ def cmd_simulate(args) -> int:
                          "metrics": {k: _finite(v) for k, v in metrics.items()},
                          "requirements": {k: {**v, "value": _finite(v["value"])} for k, v in checks.items()},
                          "trace": str(trace.to_csv(out / f"{name}.csv"))}
+        print(f"  {name}: done{' (' + trace.failure.split(':')[0] + ')' if trace.failure else ''}",
+              file=sys.stderr)
+    elapsed = time.perf_counter() - started
     unit = "samples" if prepared.plant.linear and prepared.plant.linear.discrete else "s"
     figures = plot_runs(traces, out / scenario.name, f"{scenario.name}: {scenario.description}",
                         scenario.plot or None, unit)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Iterator, Sequence
 
 import control
 import numpy as np
@@ -313,18 +313,17 @@ def run(prepared: Prepared, plant: PlantSession, index: int) -> Trace:
                  prepared.tracked, prepared.control_input, failure)
 
 
-def simulate(prepared: Prepared, progress: Callable[[str, int], None] | None = None) -> dict[str, Trace]:
-    """Every controller of the prepared scenario, on one FMU instance.
-
-    ``progress(controller, steps)`` is called before each run.
-    """
-    traces = {}
+def runs(prepared: Prepared) -> Iterator[Trace]:
+    """Each controller of the prepared scenario in turn, on one FMU instance: a trace as soon
+    as its run ends, so a caller can save it before the next run starts."""
     with PlantSession.open(prepared.fmu) as plant:
         for index, (cfile, _) in enumerate(prepared.controllers):
-            if progress:
-                progress(cfile.name, prepared.steps)
             try:
-                traces[cfile.name] = run(prepared, plant, index)
+                yield run(prepared, plant, index)
             except FmuError as error:
                 raise FmuError(f"{prepared.scenario.source}: controller {cfile.name}: {error}") from None
-    return traces
+
+
+def simulate(prepared: Prepared) -> dict[str, Trace]:
+    """Every controller of the prepared scenario: ``{controller name: Trace}``."""
+    return {trace.controller: trace for trace in runs(prepared)}
