@@ -14,13 +14,6 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 
 
-def _parameters(args) -> dict:
-    from furuta_cosim.fmu.plants import load_plant
-
-    plant = load_plant(args.params)
-    return dict(plant.parameters)
-
-
 def cmd_build_fmu(args) -> int:
     from furuta_cosim.fmu.exporter import build_fmu
 
@@ -69,55 +62,70 @@ def _pairs(values) -> list:
     return [[float(z.real), float(z.imag)] for z in values]
 
 
-def _model_problem(model_name: str, error):
-    """The model file (or name) and its A, B keys, for a design problem of the model itself."""
+def _model_source(model_name: str) -> str:
+    """Where a model comes from, for messages: its plant file, or its name."""
     from furuta_cosim.errors import ConfigError
     from furuta_cosim.fmu.plants import plant_path
 
+    if model_name.startswith("derived"):
+        return model_name
     try:
-        where = plant_path(model_name) if not model_name.startswith("derived") else model_name
+        return str(plant_path(model_name))
     except ConfigError:
-        where = model_name
-    return ConfigError([f"{where}: A, B: {error}"])
+        return model_name
+
+
+def _weights(values, n: int, flag: str):
+    """A weight from the command line: one value (times the identity), n diagonal values or n*n
+    entries; None when not given."""
+    import numpy as np
+
+    from furuta_cosim.errors import DesignError
+
+    if not values:
+        return None
+    if len(values) == 1:
+        return values[0] * np.eye(n)
+    if len(values) == n:
+        return np.diag(values)
+    if len(values) == n * n:
+        return np.reshape(values, (n, n))
+    expected = "1 value" if n == 1 else f"{n} diagonal values or {n * n} entries"
+    raise DesignError(f"{flag}: expected {expected}, got {len(values)}")
 
 
 def cmd_design_lqr(args) -> int:
+    import dataclasses
+
     import numpy as np
 
     from furuta_cosim.controllers import ControllerFile, default_output, save_controller
-    from furuta_cosim.design import analyze, lqr
-    from furuta_cosim.errors import DesignError
+    from furuta_cosim.design import analyze, lqr, prefilter
+    from furuta_cosim.errors import ConfigError, DesignError
     from furuta_cosim.models import load_model
 
     if not args.continuous and not args.period > 0:
         raise DesignError(f"--period: must be > 0, got {args.period}")
     model = load_model(args.model)
-    period = None if (args.continuous or model.discrete) else args.period
-    Q = None
-    if args.Q:
-        n = model.n
-        if len(args.Q) not in (n, n * n):
-            raise DesignError(f"--Q: expected {n} diagonal values or {n * n} entries, got {len(args.Q)}")
-        Q = np.diag(args.Q) if len(args.Q) == n else np.reshape(args.Q, (n, n))
-    R = None if args.R is None else np.reshape(args.R, (1, 1)) if len(args.R) == 1 else None
-    if args.R and R is None:
-        m = model.B.shape[1]
-        if len(args.R) != m * m:
-            raise DesignError(f"--R: expected 1 or {m * m} values, got {len(args.R)}")
-        R = np.reshape(args.R, (m, m))
+    Q = _weights(args.Q, model.n, "--Q")
+    R = _weights(args.R, model.B.shape[1], "--R")
     try:
-        controller = lqr(model, Q, R, period)
+        controller = lqr(model, Q, R, None if (args.continuous or model.discrete) else args.period)
     except DesignError as error:
-        if "stabilizable" in str(error):
-            raise _model_problem(args.model, error) from None
+        if error.key == "A, B":
+            raise ConfigError([f"{_model_source(args.model)}: A, B: {error}"]) from None
+        if error.key:
+            raise DesignError(f"--{error.key}: {error}") from None
         raise
+    controller = dataclasses.replace(controller, name=args.name)
     output = args.track or default_output(model)
-    controller = type(controller)(controller.Ac, controller.Bc, controller.Cc, controller.Dc,
-                                  controller.period, args.name, controller.provenance)
-    analysis = analyze(model, controller, tracked_output=output)
-    cfile = ControllerFile(controller, controller.period or (args.period if not args.continuous else 0.0),
-                           model.name, output, analysis.prefilter, args.description,
-                           provenance=controller.provenance)
+    try:
+        F = prefilter(model, controller, output)
+    except DesignError as error:
+        raise DesignError(f"--track {output}: {error}") from None
+    analysis = analyze(model, controller)
+    cfile = ControllerFile(controller, controller.period or (0.0 if args.continuous else args.period),
+                           model.name, output, F, args.description, provenance=controller.provenance)
     if args.output:
         path = save_controller(cfile, args.output)
         print(f"wrote {path}", file=sys.stderr)
@@ -126,7 +134,7 @@ def cmd_design_lqr(args) -> int:
               "closed_loop_eigenvalues": _pairs(analysis.eigenvalues),
               "time": "discrete" if controller.discrete else "continuous",
               "period": controller.period, "model": model.name,
-              "stable": analysis.stable, "prefilter": {"output": output, "F": analysis.prefilter},
+              "stable": analysis.stable, "prefilter": {"output": output, "F": F},
               "method": controller.provenance["method"]}
     if args.json:
         print(json.dumps(result))
@@ -135,7 +143,7 @@ def cmd_design_lqr(args) -> int:
               + (f" at period {controller.period:g} s" if controller.discrete else ""))
         print("K = [" + " ".join(f"{k:.6g}" for k in np.ravel(K)) + "]")
         print("closed-loop eigenvalues: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
-        print(f"prefilter for {output}: F = {analysis.prefilter:.6g}")
+        print(f"prefilter for {output}: F = {F:.6g}")
     return 0
 
 
@@ -227,6 +235,13 @@ def cmd_simulate(args) -> int:
     return 0 if passed else EXIT_FAILED
 
 
+def _cell(metrics: dict, key: str) -> str:
+    """A table cell: blank when the metric does not apply, 'never' when it is not finite."""
+    if key not in metrics:
+        return ""
+    return "never" if metrics[key] is None else format(metrics[key], ".4g")
+
+
 def _print_table(scenario, traces, results) -> None:
     first = next(iter(traces.values()))
     keys = [f"{first.tracked}.{m}" for m in ("RiseTime", "SettlingTime", "Overshoot", "Peak")]
@@ -238,11 +253,8 @@ def _print_table(scenario, traces, results) -> None:
     width = max(len(k) for k in rows) if rows else 10
     print(f"{'metric':{width}s}  " + "  ".join(f"{n:>16s}" for n in names))
     for key in rows:
-        cells = []
-        for name in names:
-            value = results[name]["metrics"].get(key, "")
-            cells.append(f"{'never' if value is None else value if value == '' else format(value, '.4g'):>16}")
-        print(f"{key:{width}s}  " + "  ".join(cells))
+        cells = [_cell(results[name]["metrics"], key) for name in names]
+        print(f"{key:{width}s}  " + "  ".join(f"{c:>16s}" for c in cells))
     for name in names:
         if results[name]["failure"]:
             print(f"FAIL  {name}: the run {results[name]['failure']}")
@@ -303,8 +315,8 @@ def build_parser() -> argparse.ArgumentParser:
     timing.add_argument("--period", type=float, default=PAPER_PERIOD,
                         help="dlqr on the zero-order-hold model at this period (default 0.002 s)")
     timing.add_argument("--continuous", action="store_true", help="continuous ARE instead")
-    q.add_argument("--Q", type=float, nargs="+", help="diagonal (n values) or full (n*n) state weight")
-    q.add_argument("--R", type=float, nargs="+", help="input weight (default 10 for the pendulum)")
+    q.add_argument("--Q", type=float, nargs="+", help="state weight: 1 value (times I), n diagonal values or n*n entries")
+    q.add_argument("--R", type=float, nargs="+", help="input weight, like --Q (default 10 for the pendulum)")
     q.add_argument("--track", help="output the prefilter makes track (default theta0 / first output)")
     q.add_argument("--name", default="lqr", help="the controller's name in the file")
     q.add_argument("--description", default="", help="a line saying what it is for")

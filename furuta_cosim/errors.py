@@ -14,10 +14,22 @@ class ConfigError(ValueError):
         self.problems = list(problems)
         super().__init__("\n".join(self.problems))
 
+    def within(self, prefix: str) -> "ConfigError":
+        """The same problems, seen from the file that referred to this one (``scenario: key``)."""
+        return ConfigError([f"{prefix}: {problem}" for problem in self.problems])
+
 
 class FmuError(RuntimeError):
     """An FMU that failed to build, load, or reported an error while running."""
 
 
 class DesignError(ValueError):
-    """A control design problem that has no valid answer (unstabilizable, singular, ...)."""
+    """A control design problem that has no valid answer (unstabilizable, singular, ...).
+
+    ``key`` names the setting at fault when there is one (``Q``, ``R``, ``period``, or
+    ``A, B`` for the model itself), so that a caller can point at its own flag or file.
+    """
+
+    def __init__(self, message: str, key: str | None = None):
+        self.key = key
+        super().__init__(message)

@@ -103,3 +103,23 @@ def test_list_shows_every_shipped_file_with_its_description(capsys):
                  "toy-classical", "toy-generalized", "paper-step", "noise-kalman", "toy-sine"):
         assert f"  {name} " in out
     assert "the paper's BO-tuned generalized controller" in out
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--track", "dtheta0"], "error: --track dtheta0: prefilter: the DC gain from r to dtheta0 is"),
+    (["--track", "phi"], "error: --track phi: model paper-printed has no output or state 'phi'"),
+    (["--R", "-1"], "error: --R: R must be positive definite"),
+    (["--Q", "1", "1", "1", "1", "-1"], "error: --Q: Q must be positive semi-definite"),
+    (["--model", "toy", "--R", "1", "2"], "error: --R: expected 1 value, got 2"),
+])
+def test_design_flags_with_problems_are_named(capsys, argv, expected):
+    code, out, err = run(capsys, "design", "lqr", *argv)
+    assert code == 2 and out == "" and "Traceback" not in err
+    assert err.startswith(expected), err
+
+
+def test_a_single_weight_value_scales_the_identity(capsys):
+    _, out, _ = run(capsys, "design", "lqr", "--continuous", "--Q", "1", "--R", "1", "--json")
+    _, reference, _ = run(capsys, "design", "lqr", "--continuous", "--Q", "1", "1", "1", "1", "1",
+                          "--R", "1", "--json")
+    assert json.loads(out)["K"] == json.loads(reference)["K"]

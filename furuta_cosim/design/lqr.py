@@ -46,18 +46,18 @@ def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> Gene
     if R.shape == (1, 1) and m > 1:
         R = np.eye(m) * R[0, 0]
     if Q.shape != (model.n, model.n):
-        raise DesignError(f"Q must be {model.n}x{model.n} (or {model.n} diagonal values), got {Q.shape}")
+        raise DesignError(f"Q must be {model.n}x{model.n} (or {model.n} diagonal values), got {Q.shape}", "Q")
     if R.shape != (m, m):
-        raise DesignError(f"R must be {m}x{m}, got {R.shape}")
+        raise DesignError(f"R must be {m}x{m}, got {R.shape}", "R")
     for name, weight, strict in (("Q", Q, False), ("R", R, True)):
         if not np.all(np.isfinite(weight)) or not np.allclose(weight, weight.T):
-            raise DesignError(f"{name} must be finite and symmetric")
+            raise DesignError(f"{name} must be finite and symmetric", name)
         smallest = np.linalg.eigvalsh(weight).min()
         if smallest <= 0 if strict else smallest < -1e-12:
-            raise DesignError(f"{name} must be positive {'definite' if strict else 'semi-definite'}")
+            raise DesignError(f"{name} must be positive {'definite' if strict else 'semi-definite'}", name)
     if period is not None and not model.discrete:
         if not period > 0:
-            raise DesignError(f"the period must be > 0, got {period}")
+            raise DesignError(f"the period must be > 0, got {period}", "period")
         design_model = discretize(model, period)
     else:
         design_model = model
@@ -65,7 +65,7 @@ def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> Gene
     if modes:
         listed = ", ".join(f"{z.real:.4g}{z.imag:+.4g}j" for z in modes)
         raise DesignError(f"(A, B) of {model.name} is not stabilizable: mode(s) {listed} "
-                          "cannot be moved by the input")
+                          "cannot be moved by the input", "A, B")
     if design_model.discrete:
         K, _, _ = control.dlqr(design_model.A, design_model.B, Q, R)
         method = "dlqr (zero-order hold)" if not model.discrete else "dlqr"
