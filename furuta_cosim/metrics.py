@@ -23,10 +23,8 @@ import control
 import numpy as np
 
 from furuta_cosim.cosim.trace import Trace
-from furuta_cosim.scenario import Requirement
+from furuta_cosim.scenario import STEP_NAMES, Requirement
 
-STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
-              "Undershoot", "Peak", "PeakTime", "SteadyStateValue")
 THRESHOLD = 0.02
 
 

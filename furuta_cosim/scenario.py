@@ -28,6 +28,11 @@ SIGNAL_KEYS = {
     "table": ({"points"}, {"interpolation"}),
 }
 METRIC_BOUNDS = ("max", "min")
+# the metrics furuta_cosim.metrics computes, by signal: "<signal>.<name>"
+STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
+              "Undershoot", "Peak", "PeakTime", "SteadyStateValue")
+METRIC_NAMES = {"u": ("peak_abs", "rms", "energy"), "error": ("IAE", "ISE", "ITAE", "RMS")}
+SIGNAL_METRIC_NAMES = STEP_NAMES + ("max_abs",)  # of any recorded signal
 
 
 @dataclass(frozen=True)
@@ -227,11 +232,6 @@ def _timing(check: Checker, value):
         period = check.number(section["control_period"], "timing.control_period", positive=True)
     if "communication_step" in section:
         step = check.number(section["communication_step"], "timing.communication_step", positive=True)
-    if period and step:
-        ratio = period / step
-        if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
-            check.fail("timing.control_period", f"must be a whole multiple of "
-                       f"timing.communication_step ({step:g}), got {period:g}")
     if duration and period and duration < period:
         check.fail("timing.duration", f"must be at least one control period ({period:g}), got {duration:g}")
     return duration or 0.0, period, step
@@ -251,11 +251,12 @@ def _signal(check: Checker, value, key: str) -> Signal | None:
     params = {}
     for name in (required | optional) & set(section):
         if name == "points":
-            points = section["points"]
-            rows = check.matrix(points, f"{key}.points", cols=2) if isinstance(points, list) and points and isinstance(points[0], list) else None
+            pairs = section["points"]
+            if not (isinstance(pairs, list) and pairs and all(isinstance(p, list) for p in pairs)):
+                check.fail(f"{key}.points", "expected a list of [time, value] pairs")
+                continue
+            rows = check.matrix(pairs, f"{key}.points", cols=2)
             if rows is None:
-                if not (isinstance(points, list) and points and isinstance(points[0], list)):
-                    check.fail(f"{key}.points", "expected a list of [time, value] pairs")
                 continue
             times = [r[0] for r in rows]
             if any(b <= a for a, b in zip(times, times[1:])):
@@ -351,6 +352,14 @@ def _requirements(check: Checker, value) -> tuple[Requirement, ...]:
         metric = check.string(section["metric"], f"{key}.metric")
         if metric and "." not in metric:
             check.fail(f"{key}.metric", f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}")
+            metric = None
+        if metric:
+            signal, name = metric.split(".", 1)
+            names = METRIC_NAMES.get(signal, SIGNAL_METRIC_NAMES)
+            if name not in names:
+                check.fail(f"{key}.metric", f"{signal} has no metric {name!r} (expected one of: "
+                           f"{', '.join(names)})")
+                metric = None
         bounds = {b: check.number(section[b], f"{key}.{b}") for b in METRIC_BOUNDS if b in section}
         if not bounds:
             check.fail(key, "expected a bound: max and/or min")

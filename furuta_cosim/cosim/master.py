@@ -11,6 +11,7 @@ controller meets the same noise.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -67,7 +68,7 @@ def prepare(scenario: Scenario, controllers: Sequence[str | Path] | None = None)
     try:
         plant = load_plant(scenario.plant)
     except ConfigError as error:
-        raise ConfigError([f"{scenario.source}: plant.model: {p}" for p in error.problems]) from None
+        raise error.within(f"{scenario.source}: plant.model") from None
     fmu = build_fmu(plant)
     description = model_description(fmu)
     variables = {v.name: v for v in description.modelVariables}
@@ -112,6 +113,12 @@ def prepare(scenario: Scenario, controllers: Sequence[str | Path] | None = None)
     for name in measured:
         if name not in outputs:
             fail("estimator.measured", f"{name!r} is not an output (outputs: {', '.join(outputs)})")
+    signals = set(outputs) | set(process) | {"u", "error", "u_command"} | {f"{n}_hat" for n in states}
+    for k, requirement in enumerate(scenario.requirements):
+        signal = requirement.metric.split(".", 1)[0]
+        if signal not in signals and not re.fullmatch(r"xc\d+", signal):
+            fail(f"requirements[{k}].metric", f"no signal {signal!r} is recorded (signals: u, error, "
+                 f"{', '.join(outputs)})")
     noisy = list(scenario.noise.measurement) if scenario.noise else []
     allowed = measured or states
     for name in noisy:
@@ -152,7 +159,7 @@ def _timing(scenario: Scenario, plant: PlantSet, fail) -> tuple[float, float, in
     step = scenario.communication_step or period
     ratio = period / step
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
-        fail("timing.control_period", f"must be a whole multiple of the communication step "
+        fail("timing.control_period", f"must be a whole multiple of timing.communication_step "
              f"({step:g}), got {period:g}")
     if sample:
         k = step / sample
@@ -167,7 +174,7 @@ def _runtime(scenario, key, name, states, tracked, period):
     try:
         cfile = load_controller(name)
     except ConfigError as error:
-        raise ConfigError([f"{scenario.source}: {key}: {p}" for p in error.problems]) from None
+        raise error.within(f"{scenario.source}: {key}") from None
     c = cfile.controller
     what = "K" if c.n_xc == 0 else "Dc"
     if c.Dc.shape != (1, len(states)):
@@ -186,7 +193,7 @@ def _runtime(scenario, key, name, states, tracked, period):
             try:
                 cfile = check_fits(cfile, load_model(cfile.model or scenario.plant))
             except ConfigError as error:
-                raise ConfigError([f"{scenario.source}: {key}: {p}" for p in error.problems]) from None
+                raise error.within(f"{scenario.source}: {key}") from None
         F = cfile.F
     return cfile, RuntimeController(discretize_controller(c, period), F)
 
