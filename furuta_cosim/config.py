@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from types import MappingProxyType
+from typing import Any, Mapping
 
 import yaml
 
@@ -94,6 +95,16 @@ class Checker:
             self.fail(key, f"must be >= {minimum:g}, got {value:g}")
             return None
         return int(value) if integer else float(value)
+
+    def numbers(self, value: Any, key: str, **bounds) -> Mapping[str, float]:
+        """A mapping of names to numbers (the names are free); the good entries, read-only."""
+        section = self.mapping(value, key, optional=tuple(value) if isinstance(value, dict) else ())
+        result = {}
+        for name, number in (section or {}).items():
+            number = self.number(number, _join(key, name), **bounds)
+            if number is not None:
+                result[str(name)] = number
+        return MappingProxyType(result)
 
     def string(self, value: Any, key: str, choices: tuple | None = None) -> str | None:
         if not isinstance(value, str) or not value:

@@ -197,24 +197,14 @@ def load_scenario(name: str | Path) -> Scenario:
                     disturbances, limit, controllers, estimator, requirements, window, plot)
 
 
-def _numbers(check: Checker, value, key: str, **bounds) -> Mapping[str, float]:
-    section = check.mapping(value, key, optional=tuple(value) if isinstance(value, dict) else ())
-    result = {}
-    for name, number in (section or {}).items():
-        number = check.number(number, f"{key}.{name}", **bounds)
-        if number is not None:
-            result[str(name)] = number
-    return MappingProxyType(result)
-
-
 def _plant(check: Checker, value):
     section = check.mapping(value, "plant", required=("model",),
                             optional=("overrides", "initial", "control_input"))
     if not section:
         return "", MappingProxyType({}), MappingProxyType({}), None
     model = check.string(section.get("model"), "plant.model") if "model" in section else ""
-    overrides = _numbers(check, section.get("overrides", {}), "plant.overrides")
-    initial = _numbers(check, section.get("initial", {}), "plant.initial")
+    overrides = check.numbers(section.get("overrides", {}), "plant.overrides")
+    initial = check.numbers(section.get("initial", {}), "plant.initial")
     control_input = None
     if "control_input" in section:
         control_input = check.string(section["control_input"], "plant.control_input")
@@ -297,8 +287,8 @@ def _noise(check: Checker, value) -> Noise | None:
     if not section:
         return None
     seed = check.number(section.get("seed"), "noise.seed", integer=True, minimum=0) if "seed" in section else 0
-    process = _numbers(check, section.get("process", {}), "noise.process", minimum=0.0)
-    measurement = _numbers(check, section.get("measurement", {}), "noise.measurement", minimum=0.0)
+    process = check.numbers(section.get("process", {}), "noise.process", minimum=0.0)
+    measurement = check.numbers(section.get("measurement", {}), "noise.measurement", minimum=0.0)
     return Noise(seed or 0, process, measurement)
 
 

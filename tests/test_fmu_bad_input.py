@@ -118,3 +118,20 @@ def test_validate_fmu_passes_both_fmus(furuta_fmu, toy_fmu, capsys):
 def test_build_fmu_prints_the_path_last(capsys, tmp_path):
     assert main(["build-fmu", "toy", "-o", str(tmp_path)]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1] == str(tmp_path / "Toy.fmu")
+
+
+def test_a_set_extends_another_file_relative_to_itself(tmp_path):
+    (tmp_path / "base.yaml").write_text("model: furuta\nextends: paper-calibrated\nparameters: {C1: 2.0e-3}\n")
+    (tmp_path / "sub").mkdir()
+    child = tmp_path / "sub" / "child.yaml"
+    child.write_text("model: furuta\nextends: ../base.yaml\nparameters: {V_max: 12}\n")
+    plant = load_plant(child)
+    assert plant.parameters["C1"] == 2.0e-3 and plant.parameters["V_max"] == 12.0
+    assert plant.parameters["N"] == 122.40
+
+
+def test_a_set_with_a_bad_value_names_it(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model: furuta\nextends: paper-calibrated\nparameters: {C1: lots}\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: parameters.C1: expected a number, got a string \('lots'\)"):
+        load_plant(bad)

@@ -12,12 +12,14 @@ import math
 import re
 from dataclasses import dataclass, field
 
+from furuta_cosim.errors import FmuError
+
 CAUSALITIES = ("parameter", "input", "output", "local")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?$|^der\([A-Za-z_][A-Za-z0-9_]*\)$")
 
 
-class DeclarationError(ValueError):
-    """A plant declaration that cannot become an FMU."""
+class DeclarationError(FmuError):
+    """A plant declaration (``fmu_src/<model>/model.py``) that cannot become an FMU."""
 
 
 @dataclass(frozen=True)

@@ -88,19 +88,18 @@ def _load(path: Path, seen: tuple) -> PlantSet:
     if "extends" in top:
         base_name = check.string(top["extends"], "extends")
         check.done()
-        base_path = plant_path(base_name) if not Path(base_name).is_absolute() else Path(base_name)
+        base_path = Path(base_name)
+        if base_path.suffix in (".yaml", ".yml") and not base_path.is_absolute():
+            base_path = path.parent / base_path  # a relative file is relative to this one
+        else:
+            base_path = plant_path(base_name)
         if base_path.resolve() in seen:
             raise ConfigError([f"{path}: extends: circular ({base_name})"])
         base = _load(base_path, seen + (path.resolve(),))
         if base.model != model:
             check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
         parameters.update(base.parameters)
-    values = check.mapping(top.get("parameters", {}), "parameters",
-                           optional=tuple(top.get("parameters") or ()))
-    for key, value in (values or {}).items():
-        number = check.number(value, f"parameters.{key}")
-        if number is not None:
-            parameters[key] = number
+    parameters.update(check.numbers(top.get("parameters", {}), "parameters"))
     check.done()
     return PlantSet(path.stem, path, model, str(description), MappingProxyType(parameters))
 
