@@ -9,9 +9,17 @@ os.environ["FURUTA_COSIM_CACHE"] = tempfile.mkdtemp(prefix="furuta-cosim-test-ca
 
 import pytest  # noqa: E402
 
+from furuta_cosim.cli import main  # noqa: E402
 from furuta_cosim.fmu.exporter import build_fmu  # noqa: E402
 
 STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
+
+
+def run_cli(capsys, *argv):
+    """``furuta-cosim ARGV`` in-process: (exit code, stdout, stderr)."""
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
 
 
 def pytest_sessionfinish(session, exitstatus):

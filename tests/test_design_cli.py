@@ -5,13 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from furuta_cosim.cli import main
-
-
-def run(capsys, *argv):
-    code = main(list(argv))
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
+from conftest import run_cli as run
 
 
 def test_design_lqr_json_gives_the_printed_gain(capsys):

@@ -4,6 +4,8 @@ import pytest
 
 from furuta_cosim.cli import main
 
+from conftest import run_cli
+
 BASE = """\
 plant: {model: furuta, initial: {theta1: 0.1}}
 timing: {duration: 0.1}
@@ -87,13 +89,12 @@ def test_malformed_scenario(tmp_path, capsys, case):
     text, expected = CASES[case]
     path = tmp_path / f"{case}.yaml"
     path.write_text(text)
-    code = main(["simulate", str(path), "-o", str(tmp_path / "out")])
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert code == 2, captured
+    code, out, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path / "out"))
+    lines = err.strip().splitlines()
+    assert code == 2, (out, err)
     assert len(lines) == 1, lines
     assert lines[0].startswith(f"error: {path}: ") and expected in lines[0], lines[0]
-    assert captured.out == "" and not (tmp_path / "out").exists()
+    assert out == "" and not (tmp_path / "out").exists()
 
 
 def test_missing_scenario_file(tmp_path, capsys):
