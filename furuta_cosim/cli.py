@@ -181,58 +181,66 @@ def cmd_analyze(args) -> int:
     return 0 if analysis.stable else EXIT_FAILED
 
 
-def _finite(value):
-    import math
+class _Progress:
+    """Progress of long runs on stderr: a live bar on a terminal, a line every few seconds
+    otherwise; nothing for runs that end within a second."""
 
-    return value if value is None or math.isfinite(value) else None
+    def __init__(self, delay: float = 1.0, every: float = 5.0):
+        import time
+
+        self._clock, self._delay, self._every = time.monotonic, delay, every
+        self._bar, self._name, self._started, self._last = None, None, 0.0, 0.0
+
+    def __call__(self, name: str, k: int, steps: int) -> None:
+        now = self._clock()
+        if name != self._name:
+            self.close()
+            self._name, self._started, self._last = name, now, now
+        if now - self._started < self._delay:
+            return
+        if sys.stderr.isatty():
+            if self._bar is None:
+                from tqdm import tqdm
+
+                self._bar = tqdm(total=steps, desc=f"  {name}", unit="step", unit_scale=True,
+                                 leave=False, file=sys.stderr)
+            self._bar.update(k - self._bar.n)
+        elif now - self._last >= self._every or k == steps:
+            self._last = now
+            print(f"  {name}: {k}/{steps} steps ({k / steps:.0%})", file=sys.stderr)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
 
 def cmd_simulate(args) -> int:
     import time
     from pathlib import Path
 
-    from furuta_cosim.cosim.master import prepare, runs
-    from furuta_cosim.metrics import all_pass, compute, verdicts
-    from furuta_cosim.report.figures import plot_runs
     from furuta_cosim.scenario import load_scenario
+    from furuta_cosim.simulation import simulate_scenario
 
     scenario = load_scenario(args.scenario)
-    prepared = prepare(scenario, args.controller)
     out = Path(args.output or Path("out") / scenario.name)
     started = time.perf_counter()
-    traces, results, passed = {}, {}, True
-    names = [cfile.name for cfile, _ in prepared.controllers]
-    print(f"simulating {scenario.name}: {prepared.steps} control steps each for "
-          f"{', '.join(names)}", file=sys.stderr)
-    for trace in runs(prepared):
-        # each trace is written as soon as its run ends: nothing is lost if a later run fails
-        name = trace.controller
-        traces[name] = trace
-        metrics = compute(trace, scenario.reference.settles, scenario.error_window)
-        checks = verdicts(metrics, scenario.requirements, name)
-        passed &= all_pass(checks) and not trace.failure
-        results[name] = {"failure": trace.failure,
-                         "metrics": {k: _finite(v) for k, v in metrics.items()},
-                         "requirements": {k: {**v, "value": _finite(v["value"])} for k, v in checks.items()},
-                         "trace": str(trace.to_csv(out / f"{name}.csv"))}
-        print(f"  {name}: done{' (' + trace.failure.split(':')[0] + ')' if trace.failure else ''}",
-              file=sys.stderr)
+    progress = _Progress()
+    try:
+        document, results = simulate_scenario(
+            scenario, out, controllers=args.controller, fmu=args.fmu, every=args.every,
+            traces=not args.no_trace, progress=progress,
+            log=lambda line: (progress.close(), print(line, file=sys.stderr)))
+    finally:
+        progress.close()
     elapsed = time.perf_counter() - started
-    unit = "samples" if prepared.plant.linear and prepared.plant.linear.discrete else "s"
-    figures = plot_runs(traces, out / scenario.name, f"{scenario.name}: {scenario.description}",
-                        scenario.plot or None, unit)
-    document = {"scenario": scenario.name, "description": scenario.description,
-                "plant": prepared.plant.name, "control_period": prepared.control_period,
-                "steps": prepared.steps, "controllers": results,
-                "figures": [str(f) for f in figures], "passed": passed}
-    (out / "metrics.json").write_text(json.dumps(document, indent=2) + "\n")
     if args.json:
         print(json.dumps(document))
     else:
-        _print_table(scenario, traces, results)
-        print(f"{len(traces)} run(s) of {prepared.steps} steps in {elapsed:.2f} s; "
-              f"traces, metrics.json and figures in {out}")
-    return 0 if passed else EXIT_FAILED
+        _print_table(scenario, results, document)
+        print(f"{len(results)} run(s) of {document['steps']} steps in {elapsed:.2f} s; "
+              f"{', '.join(document['files'])} in {out}")
+    return 0 if document["passed"] else EXIT_FAILED
 
 
 def _cell(metrics: dict, key: str) -> str:
@@ -242,26 +250,29 @@ def _cell(metrics: dict, key: str) -> str:
     return "never" if metrics[key] is None else format(metrics[key], ".4g")
 
 
-def _print_table(scenario, traces, results) -> None:
-    first = next(iter(traces.values()))
+def _print_table(scenario, results, document) -> None:
+    first = next(iter(results.values())).trace
     keys = [f"{first.tracked}.{m}" for m in ("RiseTime", "SettlingTime", "Overshoot", "Peak")]
     keys += ["error.IAE", "error.RMS", "u.peak_abs", "u.rms", "u.energy",
              "theta1.max_abs", "theta1.SettlingTime"]
     keys += [r.metric for r in scenario.requirements]
-    names = list(results)
-    rows = [k for k in dict.fromkeys(keys) if any(k in results[n]["metrics"] for n in names)]
+    entries = document["controllers"]
+    names = list(entries)
+    rows = [k for k in dict.fromkeys(keys) if any(k in entries[n]["metrics"] for n in names)]
     width = max(len(k) for k in rows) if rows else 10
     print(f"{'metric':{width}s}  " + "  ".join(f"{n:>16s}" for n in names))
     for key in rows:
-        cells = [_cell(results[name]["metrics"], key) for name in names]
+        cells = [_cell(entries[name]["metrics"], key) for name in names]
         print(f"{key:{width}s}  " + "  ".join(f"{c:>16s}" for c in cells))
     for name in names:
-        if results[name]["failure"]:
-            print(f"FAIL  {name}: the run {results[name]['failure']}")
-        for text, verdict in results[name]["requirements"].items():
+        if entries[name]["failure"]:
+            print(f"FAIL  {name}: the run {entries[name]['failure']}")
+        for text, verdict in entries[name]["requirements"].items():
             value = verdict["value"]
             shown = "no finite value" if value is None else format(value, ".6g")
             print(f"{'PASS' if verdict['pass'] else 'FAIL'}  {name}: {text} (got {shown})")
+    for note in document["unchecked"]:
+        print(f"SKIP  {note}")
 
 
 def cmd_list(args) -> int:
@@ -280,7 +291,7 @@ def cmd_list(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from furuta_cosim.design.lqr import PAPER_PERIOD
+    from furuta_cosim.defaults import PAPER_PERIOD
 
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
@@ -334,7 +345,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", help="scenario file or name in scenarios/ (paper-step, toy-step, ...)")
     p.add_argument("--controller", action="append",
                    help="run this controller file instead of the scenario's (repeatable)")
+    p.add_argument("--fmu", help="run on this plant FMU instead of the scenario's plant "
+                                 "(mapped by the scenario's plant.mapping)")
     p.add_argument("-o", "--output", help="folder for traces, metrics and figures (default out/<scenario>)")
+    p.add_argument("--every", type=int, default=1, metavar="N",
+                   help="write every N-th sample to the CSV traces (metrics use all)")
+    p.add_argument("--no-trace", action="store_true", help="write no CSV traces")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(handler=cmd_simulate)
 

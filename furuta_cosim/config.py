@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import yaml
 
@@ -38,16 +37,59 @@ def load_yaml(path: str | Path) -> Any:
         raise ConfigError([f"{path}: {where}: invalid YAML ({reason})"]) from None
 
 
-def resolve_file(name: str | Path, folder: Path, kind: str) -> Path:
-    """A path as given, or ``<folder>/<name>.yaml``; ConfigError listing the known names."""
+def resolve_file(name: str | Path, folder: Path, kind: str, *, beside: Path | None = None,
+                 also: tuple[str, ...] = ()) -> Path:
+    """A file path, or a name of ``<folder>/<name>.yaml``.
+
+    A relative path (it ends in .yaml/.yml or names a folder) is taken beside the file that
+    names it (``beside``) when there is one, else from the working directory. An unknown name
+    is a ConfigError listing every valid name: the files of ``folder`` and the names ``also``
+    that the caller resolves itself.
+    """
     path = Path(name)
-    if path.suffix in (".yaml", ".yml") or path.exists():
+    looks_like_path = path.suffix in (".yaml", ".yml") or len(path.parts) > 1
+    if looks_like_path:
+        if beside is not None and not path.is_absolute():
+            return beside / path
         return path
-    path = folder / f"{name}.yaml"
-    if not path.is_file():
-        known = sorted(p.stem for p in folder.glob("*.yaml"))
+    if beside is None and path.is_file():
+        return path
+    candidate = folder / f"{name}.yaml"
+    if not candidate.is_file():
+        known = sorted({p.stem for p in folder.glob("*.yaml")} | set(also))
         raise ConfigError([f"{name}: no such {kind} file or name (known: {', '.join(known)})"])
-    return path
+    return candidate
+
+
+class Frozen(Mapping):
+    """A read-only mapping that pickles (``types.MappingProxyType`` does not), so that
+    scenarios and plant sets can be shipped to worker processes."""
+
+    __slots__ = ("_data",)
+
+    def __init__(self, data: Mapping | None = None):
+        object.__setattr__(self, "_data", dict(data or {}))
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+    def __iter__(self) -> Iterator:
+        return iter(self._data)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+    def __repr__(self) -> str:
+        return f"Frozen({self._data!r})"
+
+    def __hash__(self) -> int:
+        return hash(tuple(sorted(self._data.items(), key=repr)))
+
+    def __getstate__(self):
+        return self._data
+
+    def __setstate__(self, state):
+        object.__setattr__(self, "_data", dict(state))
 
 
 class Checker:
@@ -104,7 +146,7 @@ class Checker:
             number = self.number(number, _join(key, name), **bounds)
             if number is not None:
                 result[str(name)] = number
-        return MappingProxyType(result)
+        return Frozen(result)
 
     def string(self, value: Any, key: str, choices: tuple | None = None) -> str | None:
         if not isinstance(value, str) or not value:

@@ -52,13 +52,16 @@ class ControllerFile:
         return str(self.path) if self.path else self.name
 
 
-def controller_path(name: str | Path) -> Path:
-    return resolve_file(name, paths.scenarios() / "controllers", "controller")
+def controller_path(name: str | Path, beside: Path | None = None) -> Path:
+    """A controller name of ``scenarios/controllers``, or a file (relative: to ``beside``)."""
+    return resolve_file(name, paths.scenarios() / "controllers", "controller", beside=beside)
 
 
-def load_controller(name: str | Path) -> ControllerFile:
-    """Read and validate a controller file; every problem is reported at once."""
-    path = controller_path(name)
+def load_controller(name: str | Path, beside: Path | None = None) -> ControllerFile:
+    """Read and validate a controller file; every problem is reported at once.
+
+    A relative file path is taken beside ``beside`` (the folder of the scenario naming it)."""
+    path = controller_path(name, beside)
     data = load_yaml(path)
     check = Checker(path)
     top = check.mapping(data, "", required=("type", "time"), optional=KEYS)
@@ -130,31 +133,67 @@ def _check_shapes(check: Checker, Ac, Bc, Cc, Dc) -> None:
         check.fail("Dc", f"expected {Cc.shape[0]} row(s) (as Cc), got {Dc.shape[0]}")
 
 
-def check_fits(cfile: ControllerFile, model: LinearModel) -> ControllerFile:
-    """Dimensions against the model, and the prefilter computed where the file leaves it out.
+def fit(cfile: ControllerFile, *, plant: str, states: int, inputs: int = 1,
+        period: float | None = None, discrete_plant: bool = False, tracked: str | None = None,
+        model=None) -> ControllerFile:
+    """The one check of a controller against where it is used; the prefilter F computed on
+    ``model`` where the file leaves it out.
+
+    Parameters
+    ----------
+    plant : str
+        How messages name the plant or model (``model paper-printed``, ``plant Furuta``).
+    states, inputs : int
+        What the controller must feed back and drive.
+    period : float, optional
+        The period a discrete controller must run at (the control period, or a discrete
+        model's sample period); None accepts any.
+    discrete_plant : bool
+        A continuous controller cannot run on a discrete plant.
+    tracked : str, optional
+        The output the run tracks; the file's prefilter must be for it.
+    model : LinearModel or callable returning one, optional
+        For a prefilter without F; called only then.
 
     Problems are ConfigErrors naming the controller file and the key.
     """
     c = cfile.controller
     key = "K" if c.n_xc == 0 else "Dc"
-    if c.Dc.shape[1] != model.n:
-        raise ConfigError([f"{cfile.source}: {key}: expected {model.n} values per row (model "
-                           f"{model.name} has {model.n} states), got {c.Dc.shape[1]}"])
-    if c.Dc.shape[0] != model.B.shape[1]:
-        raise ConfigError([f"{cfile.source}: {key}: expected {model.B.shape[1]} row(s) (model "
-                           f"{model.name} has {model.B.shape[1]} input(s)), got {c.Dc.shape[0]}"])
-    if c.discrete and model.discrete and abs(c.period - model.period) > 1e-12 * model.period:
-        raise ConfigError([f"{cfile.source}: period: {c.period} differs from model {model.name}'s "
-                           f"sample period {model.period}"])
-    if not c.discrete and model.discrete:
-        raise ConfigError([f"{cfile.source}: time: continuous controller on the discrete model "
-                           f"{model.name}"])
+
+    def fail(where: str, message: str) -> ConfigError:
+        return ConfigError([f"{cfile.source}: {where}: {message}"])
+
+    if c.Dc.shape[1] != states:
+        raise fail(key, f"expected {states} values per row ({plant} has {states} states), "
+                        f"got {c.Dc.shape[1]}")
+    if c.Dc.shape[0] != inputs:
+        raise fail(key, f"expected {inputs} row(s) ({plant} has {inputs} control input(s)), "
+                        f"got {c.Dc.shape[0]}")
+    if c.discrete and period and abs(c.period - period) > 1e-12 * period:
+        raise fail("period", f"the controller runs at {c.period:g} but {plant} is sampled at "
+                             f"{period:g}")
+    if not c.discrete and discrete_plant:
+        raise fail("time", f"a continuous controller cannot run on the discrete {plant}")
+    if tracked and cfile.tracked_output and cfile.tracked_output != tracked:
+        raise fail("prefilter.output", f"{cfile.tracked_output} differs from the tracked output "
+                                       f"{tracked}")
     if cfile.tracked_output and cfile.F is None:
+        if model is None:
+            raise fail("prefilter.F", "missing, and no model to compute it on (give F, or "
+                                      "name the model the controller was designed on)")
         try:
-            return replace(cfile, F=prefilter(model, c, cfile.tracked_output))
+            linear = model() if callable(model) else model
+            return replace(cfile, F=prefilter(linear, c, cfile.tracked_output))
         except DesignError as error:
-            raise ConfigError([f"{cfile.source}: prefilter.output: {error}"]) from None
+            raise fail("prefilter.output", str(error)) from None
     return cfile
+
+
+def check_fits(cfile: ControllerFile, model: LinearModel) -> ControllerFile:
+    """:func:`fit` against a linear model (as ``analyze`` uses it)."""
+    return fit(cfile, plant=f"model {model.name}", states=model.n, inputs=model.B.shape[1],
+               period=model.period if model.discrete else None, discrete_plant=model.discrete,
+               model=model)
 
 
 def default_output(model: LinearModel) -> str:

@@ -17,15 +17,60 @@ Keys are ``<signal>.<metric>``:
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+import re
+from typing import Iterable, Mapping, Sequence
 
-import control
 import numpy as np
 
-from furuta_cosim.cosim.trace import Trace
-from furuta_cosim.scenario import STEP_NAMES, Requirement
-
 THRESHOLD = 0.02
+STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
+              "Undershoot", "Peak", "PeakTime", "SteadyStateValue")
+INPUT_METRICS = ("peak_abs", "rms", "energy")         # of the applied input u
+ERROR_METRICS = ("IAE", "ISE", "ITAE", "RMS")          # of e = r - y
+OUTPUT_METRICS = ("max_abs", "SettlingTime")           # of any other plant output (regulation)
+SIGNAL_METRICS = ("max_abs",)                          # of any other recorded signal
+# every metric name that some signal can have: what a scenario file may name before the plant
+# is known; :func:`catalogue` says which exist for one prepared scenario
+ALL_NAMES = tuple(dict.fromkeys(STEP_NAMES + INPUT_METRICS + ERROR_METRICS + OUTPUT_METRICS))
+
+
+def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
+              settles: bool = True) -> dict[str, tuple[str, ...]]:
+    """The metrics a run records, by signal: the one place that says which exist.
+
+    ``outputs`` are the plant outputs (the tracked one among them), ``others`` the further
+    recorded signals (disturbance inputs, ``u_command``, estimates). Controller states
+    ``xc<k>`` have ``max_abs`` too; they depend on the controller, so :func:`problem` accepts
+    them by pattern.
+    """
+    result = {"u": INPUT_METRICS, "error": ERROR_METRICS}
+    for name in outputs:
+        result[name] = (STEP_NAMES + ("max_abs",) if settles else ("max_abs",)) if name == tracked \
+            else OUTPUT_METRICS
+    for name in others:
+        result.setdefault(name, SIGNAL_METRICS)
+    return result
+
+
+def problem(metric: str, known: Mapping[str, tuple[str, ...]] | None = None) -> str | None:
+    """Why ``metric`` ("<signal>.<name>") is not recorded, or None when it is.
+
+    Without ``known`` only the form and the name are checked (any signal may exist)."""
+    signal, dot, name = metric.partition(".")
+    if not dot or not signal or not name:
+        return f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}"
+    if known is None or re.fullmatch(r"xc\d+", signal):
+        names = {"u": INPUT_METRICS, "error": ERROR_METRICS}.get(signal, ALL_NAMES)
+        if re.fullmatch(r"xc\d+", signal):
+            names = SIGNAL_METRICS
+        if name not in names:
+            return f"{signal} has no metric {name!r} (expected one of: {', '.join(names)})"
+        return None
+    if signal not in known:
+        return f"no signal {signal!r} is recorded (signals: {', '.join(known)})"
+    if name not in known[signal]:
+        return f"{signal} has no metric {name!r} (its metrics: {', '.join(known[signal])})"
+    return None
 
 
 def _integrals(t: np.ndarray, e: np.ndarray, dt: float) -> dict:
@@ -39,6 +84,8 @@ def step_metrics(t: np.ndarray, y: np.ndarray, y0: float, yfinal: float) -> dict
     if abs(change) < 1e-12 or len(t) < 3:
         return None
     normalized = (y - y0) / change
+    import control  # here: importing python-control costs a second, and few callers need it
+
     try:
         info = control.step_info(normalized, T=t - t[0], yfinal=1.0, SettlingTimeThreshold=THRESHOLD)
     except IndexError:
@@ -70,11 +117,12 @@ def regulation_settling(t: np.ndarray, y: np.ndarray) -> float | None:
     return float(t[outside[-1] + 1])
 
 
-def compute(trace: Trace, settles: bool = True, error_window=None) -> dict[str, float]:
+def compute(trace, settles: bool = True, error_window=None) -> dict[str, float]:
     """All metrics of a trace as a flat ``{"signal.Metric": value}`` mapping."""
     t, dt = trace.t, (trace.t[1] - trace.t[0]) if len(trace.t) > 1 else 1.0
     y, r = trace.signals[trace.tracked], trace.r
     metrics: dict[str, float] = {}
+    metrics[f"{trace.tracked}.max_abs"] = float(np.max(np.abs(y))) if len(y) else 0.0
     if settles:
         changes = np.nonzero(np.abs(np.diff(r)) > 0)[0]
         begin = changes[-1] + 1 if len(changes) else 0
@@ -103,16 +151,17 @@ def compute(trace: Trace, settles: bool = True, error_window=None) -> dict[str, 
     return metrics
 
 
-def _regulated(trace: Trace) -> set[str]:
+def _regulated(trace) -> set[str]:
     """Outputs (not inputs, controller states or estimates) that start away from zero."""
     return {n for n, v in trace.signals.items()
             if not n.startswith(("xc", "u_")) and not n.endswith("_hat") and v[0] != 0.0}
 
 
-def verdicts(metrics: Mapping[str, float], requirements: Sequence[Requirement],
+def verdicts(metrics: Mapping[str, float], requirements: Sequence,
              controller: str) -> dict[str, dict]:
-    """``{"<requirement>": {"value": v, "pass": bool}}`` of those that apply to ``controller``;
-    a missing metric fails."""
+    """``{"<requirement>": {"value": v, "pass": bool}}`` of the requirements (scenario
+    :class:`~furuta_cosim.scenario.Requirement`) that apply to ``controller``; a missing metric
+    fails."""
     result = {}
     for requirement in (r for r in requirements if r.applies_to(controller)):
         value = metrics.get(requirement.metric)

@@ -25,7 +25,7 @@ def load_model(name: str | Path = "paper-printed") -> LinearModel:
     text = str(name)
     if text == "derived" or text.startswith("derived:"):
         return derived(text.partition(":")[2] or "paper-calibrated")
-    plant = load_plant(name)
+    plant = load_plant(name, also=("derived", "derived:<parameter set>"))
     if plant.linear is None:
         # a parameter set of a nonlinear plant: its linearization
         return derived(plant.path)

@@ -11,13 +11,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from types import MappingProxyType
 from typing import Mapping
 
 import numpy as np
 
 from furuta_cosim import paths
-from furuta_cosim.config import Checker, load_yaml, resolve_file
+from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
+from furuta_cosim.metrics import problem as metric_problem
 
 SIGNAL_KEYS = {
     "step": ({"time", "amplitude"}, {"initial"}),
@@ -28,11 +28,6 @@ SIGNAL_KEYS = {
     "table": ({"points"}, {"interpolation"}),
 }
 METRIC_BOUNDS = ("max", "min")
-# the metrics furuta_cosim.metrics computes, by signal: "<signal>.<name>"
-STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
-              "Undershoot", "Peak", "PeakTime", "SteadyStateValue")
-METRIC_NAMES = {"u": ("peak_abs", "rms", "energy"), "error": ("IAE", "ISE", "ITAE", "RMS")}
-SIGNAL_METRIC_NAMES = STEP_NAMES + ("max_abs",)  # of any recorded signal
 
 
 @dataclass(frozen=True)
@@ -126,6 +121,16 @@ class Estimator:
 
 
 @dataclass(frozen=True)
+class PlantMapping:
+    """How an FMU's variables appear to the controller (``plant.mapping``): view name -> FMU
+    variable. ``states`` is in the controller's order."""
+
+    states: Mapping[str, str]          # fed-back state -> FMU output
+    disturbances: Mapping[str, str]    # disturbance name -> FMU input
+    initial: Mapping[str, str]         # state -> FMU parameter that sets its start value
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     description: str
@@ -146,6 +151,8 @@ class Scenario:
     requirements: tuple[Requirement, ...]
     error_window: tuple[float, float] | None
     plot: tuple[str, ...]
+    fmu: Path | None = None             # an FMU to run instead of building plant.model
+    mapping: PlantMapping | None = None
 
     @property
     def source(self) -> str:
@@ -166,8 +173,9 @@ def load_scenario(name: str | Path) -> Scenario:
                                   "actuator", "estimator", "requirements", "metrics", "plot"))
     if top is None:
         check.done()
-    plant, overrides, initial, control_input = (_plant(check, top["plant"]) if "plant" in top
-                                                else ("", MappingProxyType({}), MappingProxyType({}), None))
+    plant, overrides, initial, control_input, fmu, mapping = (
+        _plant(check, top["plant"], path.parent) if "plant" in top
+        else ("", Frozen({}), Frozen({}), None, None, None))
     timing = _timing(check, top["timing"]) if "timing" in top else (0.0, None, None)
     reference = _reference(check, top.get("reference", {"signal": {"type": "constant", "value": 0.0}}))
     noise = _noise(check, top["noise"]) if "noise" in top else None
@@ -194,21 +202,54 @@ def load_scenario(name: str | Path) -> Scenario:
     check.done()
     return Scenario(str(top.get("name") or path.stem), str(top.get("description", "")), path,
                     plant, overrides, initial, control_input, *timing, reference, noise,
-                    disturbances, limit, controllers, estimator, requirements, window, plot)
+                    disturbances, limit, controllers, estimator, requirements, window, plot,
+                    fmu, mapping)
 
 
-def _plant(check: Checker, value):
-    section = check.mapping(value, "plant", required=("model",),
-                            optional=("overrides", "initial", "control_input"))
+def _plant(check: Checker, value, folder: Path):
+    section = check.mapping(value, "plant", optional=("model", "fmu", "overrides", "initial",
+                                                       "control_input", "mapping"))
     if not section:
-        return "", MappingProxyType({}), MappingProxyType({}), None
+        return "", Frozen({}), Frozen({}), None, None, None
+    if "model" not in section and "fmu" not in section:
+        check.fail("plant", "expected model (a plant name or file) or fmu (an FMU file)")
     model = check.string(section.get("model"), "plant.model") if "model" in section else ""
+    fmu = None
+    if "fmu" in section:
+        text = check.string(section["fmu"], "plant.fmu")
+        if text:
+            fmu = Path(text) if Path(text).is_absolute() else folder / text
     overrides = check.numbers(section.get("overrides", {}), "plant.overrides")
     initial = check.numbers(section.get("initial", {}), "plant.initial")
     control_input = None
     if "control_input" in section:
         control_input = check.string(section["control_input"], "plant.control_input")
-    return model or "", overrides, initial, control_input
+    mapping = _mapping(check, section["mapping"]) if "mapping" in section else None
+    return model or "", overrides, initial, control_input, fmu, mapping
+
+
+def _mapping(check: Checker, value) -> PlantMapping | None:
+    section = check.mapping(value, "plant.mapping", optional=("states", "disturbances", "initial"))
+    if section is None:
+        return None
+    parts = {}
+    for part in ("states", "disturbances", "initial"):
+        key = f"plant.mapping.{part}"
+        raw = section.get(part, {})
+        entries = check.mapping(raw, key, optional=tuple(raw) if isinstance(raw, dict) else ())
+        names = {}
+        for name, target in (entries or {}).items():
+            text = check.string(target, f"{key}.{name}")
+            if text:
+                names[str(name)] = text
+        parts[part] = Frozen(names)
+    if len(set(parts["states"].values())) != len(parts["states"]):
+        check.fail("plant.mapping.states", "two states map to the same FMU output")
+    for name in parts["initial"]:
+        if parts["states"] and name not in parts["states"]:
+            check.fail(f"plant.mapping.initial.{name}", f"not a mapped state "
+                       f"(states: {', '.join(parts['states'])})")
+    return PlantMapping(parts["states"], parts["disturbances"], parts["initial"])
 
 
 def _timing(check: Checker, value):
@@ -261,7 +302,7 @@ def _signal(check: Checker, value, key: str) -> Signal | None:
             if name == "duty" and number is not None and not 0 < number < 1:
                 check.fail(f"{key}.duty", f"must be between 0 and 1, got {number}")
             params[name] = number
-    return Signal(kind, MappingProxyType(params))
+    return Signal(kind, Frozen(params))
 
 
 def _reference(check: Checker, value) -> Reference:
@@ -340,16 +381,11 @@ def _requirements(check: Checker, value) -> tuple[Requirement, ...]:
         if not section or "metric" not in section:
             continue
         metric = check.string(section["metric"], f"{key}.metric")
-        if metric and "." not in metric:
-            check.fail(f"{key}.metric", f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}")
+        # the form and the name here; which signals exist is known once the plant is (prepare)
+        wrong = metric_problem(metric) if metric else None
+        if wrong:
+            check.fail(f"{key}.metric", wrong)
             metric = None
-        if metric:
-            signal, name = metric.split(".", 1)
-            names = METRIC_NAMES.get(signal, SIGNAL_METRIC_NAMES)
-            if name not in names:
-                check.fail(f"{key}.metric", f"{signal} has no metric {name!r} (expected one of: "
-                           f"{', '.join(names)})")
-                metric = None
         bounds = {b: check.number(section[b], f"{key}.{b}") for b in METRIC_BOUNDS if b in section}
         if not bounds:
             check.fail(key, "expected a bound: max and/or min")

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from furuta_cosim.cli import main
-from furuta_cosim.cosim.master import prepare, simulate
+from furuta_cosim.cosim import prepare, simulate
 from furuta_cosim.cosim.trace import Trace
-from furuta_cosim.metrics import compute
 from furuta_cosim.scenario import Reference, Signal, load_scenario
 
 
@@ -17,9 +16,8 @@ def run(name, **changes):
     scenario = load_scenario(name)
     if changes:
         scenario = dataclasses.replace(scenario, **changes)
-    traces = simulate(prepare(scenario))
-    return scenario, traces, {n: compute(t, scenario.reference.settles, scenario.error_window)
-                              for n, t in traces.items()}
+    results = simulate(prepare(scenario))
+    return scenario, {n: r.trace for n, r in results.items()}, {n: r.metrics for n, r in results.items()}
 
 
 def test_toy_step_reproduces_findings():
@@ -63,19 +61,19 @@ def test_paper_step_lqr_on_the_calibrated_plant():
     assert lqr["theta1.SettlingTime"] < 1.5
     assert lqr["u.peak_abs"] == pytest.approx(7.0, abs=0.5)
     assert traces["lqr-paper"].t[-1] == pytest.approx(10.0 - 0.002)
-    # FINDINGS.md 5: on the calibrated friction the BO controller does not recover
+    # docs/paper-readings.md: on the calibrated friction the BO controller does not recover
     assert metrics["bo-paper"]["theta1.SettlingTime"] == np.inf
     assert metrics["bo-paper"]["theta1.max_abs"] > 0.3
 
 
 def test_same_seed_same_trace_other_seed_other_noise():
     scenario = load_scenario("noise")
-    first = simulate(prepare(scenario))["lqr-paper"]
-    again = simulate(prepare(scenario))["lqr-paper"]
+    first = simulate(prepare(scenario))["lqr-paper"].trace
+    again = simulate(prepare(scenario))["lqr-paper"].trace
     for name in first.columns():
         np.testing.assert_array_equal(first[name], again[name])
     other_noise = dataclasses.replace(scenario.noise, seed=scenario.noise.seed + 1)
-    other = simulate(prepare(dataclasses.replace(scenario, noise=other_noise)))["lqr-paper"]
+    other = simulate(prepare(dataclasses.replace(scenario, noise=other_noise)))["lqr-paper"].trace
     assert not np.array_equal(first["tau1"], other["tau1"])
     assert not np.array_equal(first["theta1"], other["theta1"])
     # the process noise has the standard deviation the file asks for (seeded: a fixed draw)
@@ -104,7 +102,7 @@ def test_disturbance_pulse_is_applied_over_its_window():
 def test_actuator_limit_clips_the_applied_input():
     scenario = load_scenario("recovery")
     limited = dataclasses.replace(scenario, actuator_limit=15.0, controllers=("lqr-paper",))
-    trace = simulate(prepare(limited))["lqr-paper"]
+    trace = simulate(prepare(limited))["lqr-paper"].trace
     assert np.max(np.abs(trace.u)) == pytest.approx(15.0)
     assert np.max(np.abs(trace["u_command"])) > 15.0
 

@@ -114,7 +114,8 @@ def test_controller_that_does_not_fit_names_its_file_and_key(tmp_path, capsys):
     path.write_text(CASES["controller-does-not-fit"][0])
     main(["simulate", str(path)])
     err = capsys.readouterr().err
-    assert "toy-classical.yaml: K: expected 1 row of 5 values (the plant has 5 states and one control input), got 1x2" in err
+    assert "controllers[1]: " in err
+    assert "toy-classical.yaml: K: expected 5 values per row (plant paper-calibrated has 5 states), got 2" in err
 
 
 def test_all_problems_of_a_file_are_reported_at_once(tmp_path, capsys):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from furuta_cosim.cosim.generated import compile_source
 from furuta_cosim.design.controller import GeneralizedController
 
 
@@ -17,19 +18,19 @@ def _dot(row, names) -> str:
     return " + ".join(terms) if terms else "0.0"
 
 
-def _compile(source: str, name: str):
-    namespace: dict = {}
-    exec(compile(source, f"<furuta-cosim {name}>", "exec"), namespace)  # noqa: S102 (numbers only)
-    return namespace["make"]()
+def _compile(source: str, kind: str):
+    return compile_source(source, kind, "make")()
 
 
 class RuntimeController:
     """u[k] = F rbar[k] - (Cc xc[k] + Dc x[k]);  xc[k+1] = Ac xc[k] + Bc x[k] (single input).
 
     ``__call__(x, rbar)`` returns u and advances the controller state; ``reset()`` zeroes it.
+    It pickles as its matrices and is compiled again where it is unpickled.
     """
 
     def __init__(self, controller: GeneralizedController, F: float = 1.0):
+        self._made_from = (controller, F)
         if not controller.discrete:
             raise ValueError("the runtime needs a discrete controller: discretize it first")
         if controller.Dc.shape[0] != 1:
@@ -59,8 +60,11 @@ class RuntimeController:
         lines.append(f"    def state():\n        return [{', '.join(cs)}]")
         lines.append("    return control, reset, state")
         self.source = "\n".join(lines) + "\n"
-        self.control, self.reset, self.state = _compile(self.source, controller.name or "controller")
+        self.control, self.reset, self.state = _compile(self.source, "controller")
         self.n_xc = m
+
+    def __reduce__(self):
+        return (RuntimeController, self._made_from)
 
     def __call__(self, x, rbar: float) -> float:
         return self.control(x, rbar)
@@ -74,6 +78,7 @@ class RuntimeEstimator:
     """
 
     def __init__(self, Ad, Bd, C, M):
+        self._made_from = (Ad, Bd, C, M)
         n, p = Ad.shape[0], C.shape[0]
         ps = [f"p{j}" for j in range(n)]
         hs = [f"h{j}" for j in range(n)]
@@ -99,3 +104,6 @@ class RuntimeEstimator:
         lines.append("    return correct, predict, reset")
         self.source = "\n".join(lines) + "\n"
         self.correct, self.predict, self.reset = _compile(self.source, "kalman")
+
+    def __reduce__(self):
+        return (RuntimeEstimator, self._made_from)

@@ -32,18 +32,25 @@ class Trace:
     def columns(self) -> list[str]:
         return ["t", "r", "u", *self.signals]
 
-    def to_csv(self, path: str | Path) -> Path:
+    def to_csv(self, path: str | Path, every: int = 1) -> Path:
+        """Write every ``every``-th sample (the first included) to ``path``, atomically: the
+        file appears under its name only once it is complete."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("w", newline="") as handle:
-            writer = csv.writer(handle)
-            writer.writerow(self.columns())
-            writer.writerows(np.column_stack([self[c] for c in self.columns()]).tolist())
+        partial = path.with_name(f".{path.name}.partial")
+        try:
+            with partial.open("w", newline="") as handle:
+                writer = csv.writer(handle)
+                writer.writerow(self.columns())
+                writer.writerows(np.column_stack([self[c][::every] for c in self.columns()]).tolist())
+            partial.replace(path)
+        finally:
+            partial.unlink(missing_ok=True)
         return path
 
     @classmethod
     def from_csv(cls, path: str | Path, controller: str, tracked: str, input_name: str = "u") -> "Trace":
-        data = np.genfromtxt(path, delimiter=",", names=True)
+        data = np.atleast_1d(np.genfromtxt(path, delimiter=",", names=True, deletechars=""))
         names = data.dtype.names
         signals = {n: np.asarray(data[n]) for n in names if n not in ("t", "r", "u")}
         return cls(controller, np.asarray(data["t"]), np.asarray(data["r"]), np.asarray(data["u"]),

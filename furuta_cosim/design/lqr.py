@@ -5,6 +5,7 @@ from __future__ import annotations
 import control
 import numpy as np
 
+from furuta_cosim.defaults import PAPER_PERIOD  # noqa: F401 (re-exported: the design's default)
 from furuta_cosim.design.controller import GeneralizedController
 from furuta_cosim.design.linear import LinearModel, discretize, unstable_uncontrollable_modes
 from furuta_cosim.errors import DesignError
@@ -12,8 +13,6 @@ from furuta_cosim.errors import DesignError
 # The paper's weights (Sec. V-B): the pendulum angle first, then the velocities.
 PAPER_Q = (1.0, 10.0, 100.0, 10.0, 1.0)
 PAPER_R = 10.0
-# The paper's control period: its printed K is dlqr at 2 ms (FINDINGS.md 2).
-PAPER_PERIOD = 2e-3
 
 
 def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> GeneralizedController:
@@ -30,7 +29,7 @@ def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> Gene
         Input weight; default the paper's 10 for 5 states, else 1.
     period : float, optional
         Design a discrete LQR (dlqr) on the zero-order-hold discretization at this period.
-        The paper's printed K is dlqr at 2 ms (FINDINGS.md 2). Ignored for discrete models.
+        The paper's printed K is dlqr at 2 ms (docs/paper-readings.md). Ignored for discrete models.
 
     Returns
     -------

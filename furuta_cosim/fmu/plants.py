@@ -6,11 +6,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
 from typing import Mapping
 
 from furuta_cosim import paths
-from furuta_cosim.config import Checker, load_yaml, resolve_file
+from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
 from furuta_cosim.errors import ConfigError
 
 
@@ -31,6 +30,7 @@ class LinearSpec:
     outputs: list
     states: list
     x0: list
+    time_unit: str = "s"          # what one unit of time is: "s", or "samples" for a plant in samples
 
 
 @dataclass(frozen=True)
@@ -41,18 +41,24 @@ class PlantSet:
     path: Path
     model: str
     description: str
-    parameters: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    parameters: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
     linear: LinearSpec | None = None
 
 
-def plant_path(name: str | Path) -> Path:
-    """A file path, a plant name in ``scenarios/plants``, or a model's default set."""
+def plant_path(name: str | Path, also: tuple[str, ...] = ()) -> Path:
+    """A file path, a plant name in ``scenarios/plants``, or a model's default set; ``also``
+    names what the caller accepts besides (listed in the error for an unknown name)."""
     model_py = paths.fmu_sources() / str(name) / "model.py"
     if Path(name).suffix not in (".yaml", ".yml") and model_py.is_file():
         default = _default_set(model_py)
         if default:
             name = default
-    return resolve_file(name, paths.scenarios() / "plants", "plant")
+    return resolve_file(name, paths.scenarios() / "plants", "plant", also=tuple(model_names()) + also)
+
+
+def model_names() -> list[str]:
+    """The plant models that have a default parameter set (``furuta``): names a plant may take."""
+    return sorted(p.parent.name for p in paths.fmu_sources().glob("*/model.py") if _default_set(p))
 
 
 def _default_set(model_py: Path) -> str | None:
@@ -60,9 +66,9 @@ def _default_set(model_py: Path) -> str | None:
     return match.group(1) if match else None
 
 
-def load_plant(name: str | Path = "furuta") -> PlantSet:
+def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = ()) -> PlantSet:
     """Read and validate a plant file; raises ConfigError listing every problem."""
-    return _load(plant_path(name), seen=())
+    return _load(plant_path(name, also), seen=())
 
 
 def _load(path: Path, seen: tuple) -> PlantSet:
@@ -70,7 +76,7 @@ def _load(path: Path, seen: tuple) -> PlantSet:
     check = Checker(path)
     top = check.mapping(data, "", required=("model",),
                         optional=("description", "extends", "parameters", "identifier", "time",
-                                  "period", "substeps", "A", "B", "C", "D", "inputs", "outputs",
+                                  "period", "substeps", "A", "B", "C", "D", "inputs", "outputs", "time_unit",
                                   "states", "x0"))
     if top is None or "model" not in top:
         check.done()
@@ -101,7 +107,7 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         parameters.update(base.parameters)
     parameters.update(check.numbers(top.get("parameters", {}), "parameters"))
     check.done()
-    return PlantSet(path.stem, path, model, str(description), MappingProxyType(parameters))
+    return PlantSet(path.stem, path, model, str(description), Frozen(parameters))
 
 
 def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
@@ -136,6 +142,7 @@ def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
         check.fail("inputs/outputs/states", "names must differ from each other")
     if time == "continuous" and "period" in top:
         check.fail("period", "only a discrete plant has a sample period")
+    unit = check.string(top["time_unit"], "time_unit") if "time_unit" in top else "s"
     check.done()
     return LinearSpec(str(identifier), str(top.get("description", "")), time == "discrete",
-                      period, substeps, A, B, C, D, inputs, outputs, states, x0)
+                      period, substeps, A, B, C, D, inputs, outputs, states, x0, unit or "s")

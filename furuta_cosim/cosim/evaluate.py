@@ -1,0 +1,197 @@
+"""One operation, three steps: prepare a scenario (:func:`~furuta_cosim.cosim.master.prepare`),
+compile a controller against it (:func:`compile_controller`), evaluate it on an open plant
+session (:func:`evaluate`) -> :class:`~furuta_cosim.cosim.result.RunResult`.
+
+    prepared = prepare(load_scenario("paper-step"))
+    with PlantSession.open(prepared.fmu) as session:
+        for name in ("lqr-paper", "bo-paper"):
+            result = evaluate(prepared, session, name)
+            print(name, result.metrics["u.peak_abs"], result.passed)
+
+At each control sample k (period Tc) the master reads the fed-back signals (with measurement
+noise; through the estimator when there is one), the controller computes u[k] from them and
+F*rbar[k], u[k] is held over the period (zero-order hold, after the actuator limit), the
+disturbance inputs take their k-th value, and the FMU advances by Tc in communication steps.
+The session is reset at the start of every evaluation.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+
+from furuta_cosim.controllers import ControllerFile, fit, load_controller
+from furuta_cosim.cosim.loop import loop_for
+from furuta_cosim.cosim.master import Prepared
+from furuta_cosim.cosim.result import RunResult
+from furuta_cosim.cosim.runtime import RuntimeController
+from furuta_cosim.cosim.trace import Trace
+from furuta_cosim.design.controller import GeneralizedController, discretize_controller
+from furuta_cosim.errors import ConfigError, FmuError
+from furuta_cosim.metrics import compute, verdicts
+
+# samples per chunk of the loop when progress is reported (about 0.1 s of plant time each)
+CHUNK = 50_000
+
+
+@dataclass
+class Compiled:
+    """A controller checked against a prepared scenario and generated for its hot loop."""
+
+    cfile: ControllerFile
+    runtime: RuntimeController
+
+    @property
+    def name(self) -> str:
+        return self.cfile.name
+
+
+def compile_controller(prepared: Prepared, controller, *, key: str | None = None,
+                       beside: Path | None = None) -> Compiled:
+    """Check ``controller`` against ``prepared`` and compile it: the one place that checks
+    shapes, period, prefilter and tracked output.
+
+    Parameters
+    ----------
+    controller : Compiled, ControllerFile, GeneralizedController, str or path
+        A name of ``scenarios/controllers`` or a file; a relative file is taken beside
+        ``beside`` when given (the scenario's folder, for the scenario's own controllers).
+    key : str, optional
+        Where the controller was named, for messages (``controllers[1]``, ``--controller``).
+        Problems are ConfigErrors naming the scenario, that key, the controller file and its key.
+    """
+    if isinstance(controller, Compiled):
+        return controller
+    where = f"{prepared.source}: {key}" if key else prepared.source
+    try:
+        if isinstance(controller, GeneralizedController):
+            cfile = ControllerFile(controller, controller.period)
+        elif isinstance(controller, ControllerFile):
+            cfile = controller
+        else:
+            cfile = load_controller(controller, beside)
+        scenario = prepared.scenario
+
+        def model():
+            from furuta_cosim.models import load_model
+
+            return load_model(cfile.model or scenario.plant)
+
+        has_model = bool(cfile.model or (prepared.plant and scenario.plant))
+        cfile = fit(cfile, plant=f"plant {prepared.plant_name}", states=len(prepared.states),
+                    period=prepared.control_period, discrete_plant=prepared.discrete_plant,
+                    tracked=prepared.tracked if cfile.tracked_output else None,
+                    model=model if has_model else None)
+    except ConfigError as error:
+        raise error.within(where) from None
+    c = discretize_controller(cfile.controller, prepared.control_period)
+    return Compiled(cfile, RuntimeController(c, cfile.F if cfile.F is not None else 1.0))
+
+
+def scenario_controllers(prepared: Prepared, names: Sequence | None = None) -> list[Compiled]:
+    """The scenario's own controllers (relative files beside the scenario file), or ``names``
+    given on a command line (relative to the working directory)."""
+    if names:
+        return [compile_controller(prepared, n, key=f"--controller {n}") for n in names]
+    folder = prepared.scenario.path.parent if prepared.scenario.path else None
+    return [compile_controller(prepared, n, key=f"controllers[{k}]", beside=folder)
+            for k, n in enumerate(prepared.scenario.controllers)]
+
+
+def evaluate(prepared: Prepared, session, controller, *,
+             progress: Callable[[int, int], None] | None = None) -> RunResult:
+    """Run ``controller`` through the prepared scenario on ``session`` (reset here): the trace,
+    its metrics, the requirement verdicts, why it stopped early if it did, and the wall time.
+
+    ``progress(k, steps)`` is called every :data:`CHUNK` samples when given.
+    A plant that gives up (a diverging loop) ends the run early; the result keeps its samples
+    and says why in ``failure``.
+    """
+    started = time.perf_counter()
+    compiled = compile_controller(prepared, controller)
+    trace = _run(prepared, session, compiled, progress)
+    scenario = prepared.scenario
+    metrics = compute(trace, scenario.reference.settles, scenario.error_window)
+    checks = verdicts(metrics, scenario.requirements, compiled.name)
+    return RunResult(scenario.name, compiled.name, trace, metrics, checks, trace.failure,
+                     time.perf_counter() - started, prepared.time_unit)
+
+
+def runs(prepared: Prepared, controllers: Sequence | None = None, *,
+         progress: Callable[[str, int, int], None] | None = None) -> Iterator[RunResult]:
+    """Each controller (default: the scenario's) in turn on one FMU instance: a result as soon
+    as its run ends, so a caller can save it before the next run starts."""
+    from furuta_cosim.fmu.session import PlantSession
+
+    compiled = scenario_controllers(prepared, controllers)
+    with PlantSession.open(prepared.fmu) as session:
+        for c in compiled:
+            report = (lambda k, n, name=c.name: progress(name, k, n)) if progress else None
+            try:
+                yield evaluate(prepared, session, c, progress=report)
+            except FmuError as error:
+                raise FmuError(f"{prepared.source}: controller {c.name}: {error}") from None
+
+
+def simulate(prepared: Prepared, controllers: Sequence | None = None) -> dict[str, RunResult]:
+    """Every controller (default: the scenario's): ``{controller name: RunResult}``."""
+    return {result.controller: result for result in runs(prepared, controllers)}
+
+
+def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
+    controller = compiled.runtime
+    scenario = prepared.scenario
+    outputs = prepared.outputs
+    session.reset(prepared.start)
+    session.set_io([prepared.control_input] + prepared.disturbance_inputs, outputs)
+    controller.reset()
+    estimator = prepared.estimator()
+    if estimator:
+        estimator.reset()
+    sources = prepared.measured if estimator else prepared.states
+    pick = [prepared.signals.index(n) for n in sources]
+    limit = scenario.actuator_limit
+    loop = loop_for(len(sources), None if pick == list(range(len(outputs))) else tuple(pick),
+                    tuple(sources.index(n) for n in prepared.noisy), bool(estimator),
+                    controller.n_xc > 0, bool(limit), len(prepared.disturbances), prepared.substeps)
+    rows, us, commands, xcs, estimates = [], [], [], [], []
+    failure = None
+    values = session.get(outputs)
+    steps = prepared.steps
+    chunk = CHUNK if progress else max(steps, 1)
+    arguments = (session.step, controller.control, controller.state,
+                 estimator.correct if estimator else None, estimator.predict if estimator else None,
+                 prepared.rbar.tolist(),
+                 prepared.measurement_noise.tolist() if prepared.noisy else None,
+                 prepared.disturbance.tolist() if prepared.disturbances else None,
+                 prepared.communication_step)
+    try:
+        for first in range(0, steps, chunk):
+            last = min(first + chunk, steps)
+            values = loop(*arguments, first, last, values, limit or 0.0, rows.append, us.append,
+                          commands.append, xcs.append, estimates.append)
+            if progress:
+                progress(last, steps)
+    except FmuError as error:
+        # the plant gave up (a diverging loop): keep the samples up to that point
+        peak = max(map(abs, us)) if us else 0.0
+        failure = (f"stopped at t = {prepared.t[max(len(us) - 1, 0)]:.6g} with the loop diverging "
+                   f"(peak |u| {peak:.3g}): {error}")
+    n = len(us)
+    rows = rows[:n]  # a failed step appended its row before the plant gave up
+    signals = {name: column for name, column in zip(prepared.signals, np.array(rows).T)} if n else \
+        {name: np.zeros(0) for name in prepared.signals}
+    if limit:
+        signals["u_command"] = np.array(commands[:n])
+    for j, column in enumerate(np.array(xcs[:n]).T if xcs else []):
+        signals[f"xc{j + 1}"] = column
+    for j, column in enumerate(np.array(estimates[:n]).T if estimates else []):
+        signals[f"{prepared.states[j]}_hat"] = column
+    for j, name in enumerate(prepared.disturbances):
+        signals[name] = prepared.disturbance[:n, j]
+    return Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us), signals,
+                 prepared.tracked, prepared.control_input, failure)
