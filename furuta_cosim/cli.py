@@ -276,17 +276,17 @@ def _print_table(scenario, results, document) -> None:
 
 
 def cmd_list(args) -> int:
-    from furuta_cosim import paths
-    from furuta_cosim.config import load_yaml
+    from furuta_cosim.shipped import listing
 
-    folders = [("plants", paths.scenarios() / "plants"), ("controllers", paths.scenarios() / "controllers"),
-               ("scenarios", paths.scenarios())]
-    for title, folder in folders:
-        print(f"{title}:")
-        for path in sorted(folder.glob("*.yaml")):
-            data = load_yaml(path)
-            text = data.get("description", "") if isinstance(data, dict) else ""
-            print(f"  {path.stem:18s} {text}")
+    found = listing()
+    if args.json:
+        print(json.dumps(found))
+        return 0
+    for kind, entries in found.items():
+        print(f"{kind}:")
+        width = max(map(len, entries), default=10)
+        for name, text in entries.items():
+            print(f"  {name:{width}s}  {text}")
     return 0
 
 
@@ -301,7 +301,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"furuta-cosim {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = commands.add_parser("list", help="the shipped plants, controllers and scenarios")
+    p = commands.add_parser("list", help="the shipped plants, models, controllers and scenarios")
+    p.add_argument("--json", action="store_true", help="print JSON: {kind: {name: description}}")
     p.set_defaults(handler=cmd_list)
 
     p = commands.add_parser("build-fmu", help="build a plant FMU (cached) and print its path")

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Callable, Sequence
 
-from furuta_cosim.cosim.evaluate import evaluate, scenario_controllers
+from furuta_cosim.cosim.evaluation import evaluate, scenario_controllers
 from furuta_cosim.cosim.master import prepare
 from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.scenario import Scenario

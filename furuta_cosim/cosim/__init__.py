@@ -5,7 +5,7 @@ against it (or let :func:`evaluate` do so), :func:`evaluate` on an open plant se
 :class:`RunResult`. :func:`simulate` runs a scenario's controllers in turn.
 """
 
-from furuta_cosim.cosim.evaluate import Compiled, compile_controller, evaluate, runs, simulate
+from furuta_cosim.cosim.evaluation import Compiled, compile_controller, evaluate, runs, simulate
 from furuta_cosim.cosim.master import Prepared, prepare
 from furuta_cosim.cosim.result import RunResult
 

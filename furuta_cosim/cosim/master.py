@@ -2,7 +2,7 @@
 controller sees them, timing, reference and noise.
 
 A prepared scenario holds everything a run needs except the controller, so that one
-preparation serves any number of controllers (:func:`furuta_cosim.cosim.evaluate.evaluate`),
+preparation serves any number of controllers (:func:`furuta_cosim.cosim.evaluation.evaluate`),
 and it pickles, so that worker processes receive it once.
 
 The controller's view: the fed-back states in the controller's order (``theta0, dtheta0,
@@ -137,6 +137,8 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
 
     view = _view(scenario, variables, identifier, fail)
     outputs, signals, states, state_outputs, control_input, inputs, disturbance_names = view
+    if problems:  # every other name is a view name: nothing more can be checked without it
+        raise ConfigError(problems)
     for name, value in scenario.initial.items():
         if name not in states:
             fail(f"plant.initial.{name}", f"not a state (states: {', '.join(states)})")
@@ -180,7 +182,12 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
 
     others = list(process) + (["u_command"] if scenario.actuator_limit else []) + \
         ([f"{n}_hat" for n in states] if scenario.estimator else [])
-    known = catalogue(tracked, signals, others, scenario.reference.settles)
+    t = np.arange(steps) * period
+    rbar = scenario.reference(t)
+    # step metrics need a step to measure: a reference that changes, or one away from the start
+    stepped = scenario.reference.settles and len(rbar) > 2 and (
+        bool(np.any(np.diff(rbar) != 0)) or abs(rbar[0] - scenario.initial.get(tracked, 0.0)) > 1e-12)
+    known = catalogue(tracked, signals, others, stepped)
     for k, requirement in enumerate(scenario.requirements):
         wrong = problem(requirement.metric, known)
         if wrong:
@@ -197,8 +204,6 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     if problems:
         raise ConfigError(problems)
 
-    t = np.arange(steps) * period
-    rbar = scenario.reference(t)
     disturbance = np.zeros((steps, len(process)))
     measurement = np.zeros((steps, len(noisy)))
     if scenario.noise:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import atexit
 from pathlib import Path
 
-from furuta_cosim.cosim.evaluate import evaluate
+from furuta_cosim.cosim.evaluation import evaluate
 from furuta_cosim.cosim.master import Prepared
 from furuta_cosim.cosim.result import RunResult
 
@@ -41,7 +41,7 @@ def session_for(prepared: Prepared):
 
 
 def evaluate_here(prepared: Prepared, controller) -> RunResult:
-    """:func:`~furuta_cosim.cosim.evaluate.evaluate` on this process's session, keeping the
+    """:func:`~furuta_cosim.cosim.evaluation.evaluate` on this process's session, keeping the
     first copy of each prepared scenario (so its estimator is compiled once)."""
     prepared = _PREPARED.setdefault(prepared.key, prepared)
     return evaluate(prepared, session_for(prepared), controller)
