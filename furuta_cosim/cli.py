@@ -101,6 +101,7 @@ def cmd_design_lqr(args) -> int:
 
     from furuta_cosim.controllers import ControllerFile, default_output, save_controller
     from furuta_cosim.design import analyze, lqr, prefilter
+    from furuta_cosim.design.linear import time_text
     from furuta_cosim.errors import ConfigError, DesignError
     from furuta_cosim.models import load_model
 
@@ -140,7 +141,7 @@ def cmd_design_lqr(args) -> int:
         print(json.dumps(result))
     else:
         print(f"{result['method']} on {model.name}"
-              + (f" at period {controller.period:g} s" if controller.discrete else ""))
+              + (f" at period {time_text(controller.period, model.time_unit, 'g')}" if controller.discrete else ""))
         print("K = [" + " ".join(f"{k:.6g}" for k in np.ravel(K)) + "]")
         print("closed-loop eigenvalues: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
         print(f"prefilter for {output}: F = {F:.6g}")
@@ -154,6 +155,7 @@ def _complex(z) -> str:
 def cmd_analyze(args) -> int:
     from furuta_cosim.controllers import check_fits, default_output, load_controller
     from furuta_cosim.design import analyze
+    from furuta_cosim.design.linear import time_text
     from furuta_cosim.errors import ConfigError
     from furuta_cosim.models import load_model
 
@@ -170,7 +172,7 @@ def cmd_analyze(args) -> int:
     if args.json:
         print(json.dumps(analysis.as_dict()))
     else:
-        print(f"{cfile.name} on {model.name} ({'discrete, ' + format(c.period, 'g') + ' s' if c.discrete else 'continuous'})")
+        print(f"{cfile.name} on {model.name} ({'discrete, ' + time_text(c.period, model.time_unit, 'g') if c.discrete else 'continuous'})")
         print("eigenvalues of Abar: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
         if c.discrete:
             print(f"spectral radius: {analysis.spectral_radius:.6g}")

@@ -33,7 +33,7 @@ def load_model(name: str | Path = "paper-printed") -> LinearModel:
     return LinearModel(plant.name, np.array(spec.A), np.array(spec.B), np.array(spec.C),
                        np.array(spec.D), tuple(spec.states), tuple(spec.inputs),
                        tuple(spec.outputs), spec.period if spec.discrete else 0.0,
-                       {"source": str(plant.path)})
+                       {"source": str(plant.path)}, spec.time_unit)
 
 
 def derived(parameter_set: str | Path = "paper-calibrated") -> LinearModel:

@@ -1,4 +1,4 @@
-"""Control design reproduces the paper's printed numbers (FINDINGS.md 2-4)."""
+"""Control design reproduces the paper's printed numbers (paper-readings §2-§4)."""
 
 import numpy as np
 import pytest
@@ -56,7 +56,7 @@ def test_toy_eigenvalues_and_prefilters(toy):
 
 
 def test_the_papers_block_eigenvalue_formula_is_not_used(toy):
-    # FINDINGS.md 4: eig(A-BDc) U eig(Ac + Bc (A-BDc)^-1 B Cc) differs from eig(Abar)
+    # paper-readings §4: eig(A-BDc) U eig(Ac + Bc (A-BDc)^-1 B Cc) differs from eig(Abar)
     c = load_controller("toy-generalized").controller
     closed = toy.A - toy.B @ c.Dc
     formula = np.concatenate([np.linalg.eigvals(closed),
@@ -100,7 +100,7 @@ def test_zoh_controller_discretization_matches_the_matrix_exponential():
 
 def test_unstable_controller_is_reported(printed):
     K = lqr(printed).K
-    # a decoupled unstable controller state: its mode shows in the loop too (FINDINGS.md 3)
+    # a decoupled unstable controller state: its mode shows in the loop too (paper-readings §3)
     c = GeneralizedController([[0.5]], np.zeros((1, 5)), [[0.0]], K)
     analysis = analyze(printed, c)
     assert not analysis.controller_stable and not analysis.stable
@@ -143,7 +143,9 @@ def test_controller_file_round_trip(tmp_path, printed):
 
 def test_shipped_lqr_file_is_the_fresh_design(printed):
     shipped = load_controller("lqr-paper")
-    np.testing.assert_allclose(shipped.controller.K, lqr(printed, period=2e-3).K, rtol=1e-12)
+    # Riccati solvers differ between releases of scipy and python-control by about 1e-11
+    # (2.6e-11 was seen); 1e-8 still pins the design far below the printed digits (1e-3)
+    np.testing.assert_allclose(shipped.controller.K, lqr(printed, period=2e-3).K, rtol=1e-8)
     assert shipped.period == 2e-3 and shipped.controller.discrete
 
 
@@ -155,6 +157,6 @@ def test_a_two_state_controller_closes_a_seven_state_loop(printed):
     analysis = analyze(printed, c)
     assert analysis.stable and analysis.controller_stable
     np.testing.assert_allclose(sorted(analysis.controller_eigenvalues.real), [-80.0, -50.0])
-    # Bc = 0: the loop's eigenvalues are those of A - B Dc and of Ac (FINDINGS.md 3)
+    # Bc = 0: the loop's eigenvalues are those of A - B Dc and of Ac (paper-readings §3)
     expected = np.concatenate([np.linalg.eigvals(printed.A - printed.B @ K), [-50.0, -80.0]])
     np.testing.assert_allclose(np.sort_complex(analysis.eigenvalues), np.sort_complex(expected), rtol=1e-9)

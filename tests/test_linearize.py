@@ -1,4 +1,4 @@
-"""Linearization of the FMUs reproduces the paper's printed A and B (FINDINGS.md 1)."""
+"""Linearization of the FMUs reproduces the paper's printed A and B (paper-readings §1)."""
 
 import json
 
@@ -39,7 +39,7 @@ def test_cli_reproduces_every_printed_entry_but_a22(capsys):
                 mismatches.append((i + 1, j + 1, A[i, j], printed))
         if round(B[i, 0], decimals(PRINTED_B[i])) != float(PRINTED_B[i]):
             mismatches.append(("B", i + 1, B[i, 0], PRINTED_B[i]))
-    # A(2,2) alone differs: derived -0.031 against the printed -0.31 (FINDINGS.md 1)
+    # A(2,2) alone differs: derived -0.031 against the printed -0.31 (paper-readings §1)
     assert [m[:2] for m in mismatches] == [(2, 2)]
     assert A[1, 1] == pytest.approx(-0.0311, abs=5e-5)
     np.testing.assert_allclose(np.array(result["C"]), np.eye(5), atol=1e-9)

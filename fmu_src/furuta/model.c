@@ -1,5 +1,5 @@
 /* Rotary inverted (Furuta) pendulum driven by a DC motor: Solis & Thomas (2021), Sec. III,
- * with the readings of FINDINGS.md Sec. 1: one effective gear ratio N in motor torque,
+ * with the readings of docs/paper-readings.md §1: one effective gear ratio N in motor torque,
  * back-EMF and reflected rotor inertia, and the centripetal matrix M2 with lp^2.
  *
  * State x = [theta0, dtheta0, theta1, dtheta1, i]; theta1 = 0 is the upright position.

@@ -39,7 +39,7 @@ STATES = [
 def declare(parameters):
     """Return the declaration; ``parameters`` maps each physical parameter to its start."""
     model = Model("Furuta", "Rotary inverted (Furuta) pendulum with DC motor, "
-                  "Solis & Thomas (2021), readings of FINDINGS.md")
+                  "Solis & Thomas (2021), readings of docs/paper-readings.md")
     model.register_variable(Real("V", "input", start=0.0, unit="V",
                                  description="armature voltage"))
     model.register_variable(Real("tau0", "input", start=0.0, unit="N.m",

@@ -16,7 +16,7 @@ import numpy as np
 from scipy import linalg
 
 from furuta_cosim.design.controller import GeneralizedController, augmented, discretize_controller
-from furuta_cosim.design.linear import LinearModel
+from furuta_cosim.design.linear import LinearModel, time_text
 from furuta_cosim.design.prefilter import prefilter
 from furuta_cosim.errors import DesignError
 
@@ -67,6 +67,7 @@ class Analysis:
     prefilter: float | None = None
     tracked_output: str | None = None
     prefilter_problem: str | None = None
+    time_unit: str = "s"
 
     @property
     def discrete(self) -> bool:
@@ -110,16 +111,17 @@ class Analysis:
         return result
 
     def verdict(self) -> list[str]:
-        """The analysis in words."""
+        """The analysis in words, in the model's time unit."""
         d = self.dominant
+        unit = self.time_unit
         lines = []
         if self.stable:
             lines.append(f"The closed loop is stable: its slowest mode {d.describe()} has damping "
-                         f"{d.damping:.3f} and settles (2 %) in about {d.settling_time:.3g} s.")
+                         f"{d.damping:.3f} and settles (2 %) in about {time_text(d.settling_time, unit)}.")
         else:
             growth = d.s.real
             lines.append(f"The closed loop is UNSTABLE: the mode {d.describe()} grows"
-                         + (f" (amplitude doubles every {math.log(2) / growth:.3g} s)." if growth > 0
+                         + (f" (amplitude doubles every {time_text(math.log(2) / growth, unit)})." if growth > 0
                             else " or does not decay."))
         if self.controller_eigenvalues.size == 0:
             lines.append("The controller is static (n_xc = 0).")
@@ -132,7 +134,8 @@ class Analysis:
                      else "Not mean-square stable: noise makes the state's variance grow without bound.")
         if self.sampled is not None:
             s = self.sampled
-            lines.append(f"Sampled at {s.period * 1e3:g} ms with zero-order hold the loop is "
+            at = f"{s.period * 1e3:g} ms" if unit == "s" else time_text(s.period, unit, "g")
+            lines.append(f"Sampled at {at} with zero-order hold the loop is "
                          f"{'stable' if s.stable else 'UNSTABLE'} (spectral radius {s.spectral_radius:.6f}).")
         if self.prefilter is not None:
             lines.append(f"Prefilter for {self.tracked_output}: F = {self.prefilter:.6g}."
@@ -192,4 +195,5 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
         except DesignError as error:
             problem = str(error)
     return Analysis(model.name, controller.name, period, eigenvalues, stable, dominant, ac,
-                    controller_stable, variance, sampled, F, tracked_output, problem)
+                    controller_stable, variance, sampled, F, tracked_output, problem,
+                    model.time_unit)

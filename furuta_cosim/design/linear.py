@@ -27,6 +27,7 @@ class LinearModel:
     outputs: tuple[str, ...]
     period: float = 0.0
     provenance: dict = field(default_factory=dict, compare=False)
+    time_unit: str = "s"          # "samples" for a plant whose time counts samples
 
     def __post_init__(self):
         A, B, C, D = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (self.A, self.B, self.C, self.D))
@@ -71,6 +72,13 @@ class LinearModel:
                           f"(outputs: {', '.join(self.outputs)}; states: {', '.join(self.states)})")
 
 
+def time_text(value: float, unit: str = "s", spec: str = ".3g") -> str:
+    """A duration in a model's unit: ``0.85 s``, ``17.9 samples``, ``1 sample``."""
+    if unit == "samples" and value == 1:
+        return "1 sample"
+    return f"{value:{spec}} {unit}"
+
+
 def discretize(model: LinearModel, period: float) -> LinearModel:
     """Zero-order-hold discretization (python-control ``c2d``)."""
     if model.discrete:
@@ -83,7 +91,7 @@ def discretize(model: LinearModel, period: float) -> LinearModel:
     sampled = control.c2d(control.ss(model.A, model.B, model.C, model.D), period, method="zoh")
     return LinearModel(f"{model.name}@{period:g}s", sampled.A, sampled.B, sampled.C, sampled.D,
                        model.states, model.inputs, model.outputs, period,
-                       {**model.provenance, "discretized": f"zoh, {period:g} s"})
+                       {**model.provenance, "discretized": f"zoh, {period:g} s"}, model.time_unit)
 
 
 def unstable_uncontrollable_modes(model: LinearModel, tolerance: float = 1e-9) -> list[complex]:
