@@ -37,39 +37,8 @@ MAX_POINTS = 20_000
 
 def plot_runs(traces: Mapping[str, Trace], path: str | Path, title: str = "",
               signals: Sequence[str] | None = None, time_unit: str = "s") -> list[Path]:
-    """One figure, a row per signal, every controller overlaid; returns the PNG and SVG paths.
-
-    Axes are scaled to the runs that stayed bounded (those without a failure); a run that
-    left that range is drawn until it does and marked where it left, so a diverging
-    controller does not flatten the others into a line.
-    """
-    first = next(iter(traces.values()))
-    signals = list(signals) if signals else default_signals(first)
-    if "u" not in signals:
-        signals.append("u")
-    figure, axes = plt.subplots(len(signals), 1, sharex=True, figsize=(8, 2.3 * len(signals) + 0.6),
-                                squeeze=False)
-    bounded = [trace for trace in traces.values() if not trace.failure]
-    for axis, name in zip(axes[:, 0], signals):
-        for label, trace in traces.items():
-            t, y = _thin(trace.t, trace[name])
-            if name == "u":
-                axis.step(t, y, where="post", label=label, linewidth=1.2)
-            else:
-                axis.plot(t, y, label=label, linewidth=1.2)
-        if name == first.tracked:
-            t, r = _thin(first.t, first.r)
-            axis.plot(t, r, "k--", linewidth=1.0, label="reference")
-        if bounded and len(bounded) < len(traces):
-            _scale_to(axis, name, bounded, [tr for tr in traces.values() if tr.failure])
-        label = first.input_name if name == "u" else name
-        axis.set_ylabel(LABELS.get(label, label))
-        axis.grid(True, alpha=0.3)
-    axes[0, 0].legend(loc="best", fontsize="small")
-    axes[-1, 0].set_xlabel(f"time [{time_unit}]")
-    if title:
-        figure.suptitle(title)
-    figure.tight_layout()
+    """:func:`figure_of_runs` written as PNG and SVG (atomically); returns their paths."""
+    figure = figure_of_runs(traces, title, signals, time_unit)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     written = []
@@ -88,6 +57,54 @@ def plot_runs(traces: Mapping[str, Trace], path: str | Path, title: str = "",
     return written
 
 
+def figure_of_runs(traces: Mapping[str, Trace], title: str = "",
+                   signals: Sequence[str] | None = None, time_unit: str = "s"):
+    """One figure, a row per signal, every controller overlaid.
+
+    Axes are scaled to the runs that stayed bounded (those without a failure); a run that
+    left that range is drawn until it does and marked where it left, so a diverging
+    controller does not flatten the others into a line.
+    """
+    first = next(iter(traces.values()))
+    signals = list(signals) if signals else default_signals(first)
+    if "u" not in signals:
+        signals.append("u")
+    figure, axes = plt.subplots(len(signals), 1, sharex=True, figsize=(8, 2.3 * len(signals) + 0.6),
+                                squeeze=False)
+    bounded = [trace for trace in traces.values() if not trace.failure]
+    scale = bool(bounded) and len(bounded) < len(traces)
+    for axis, name in zip(axes[:, 0], signals):
+        limits = _limits(name, bounded) if scale else None
+        for label, trace in traces.items():
+            t, y = trace.t, np.asarray(trace[name], dtype=float)
+            exit = _exit(y, limits) if limits and trace.failure else None
+            if exit is not None:
+                # drawn until it leaves the bounded runs' range, then marked there
+                t, y = t[:exit + 1], y[:exit + 1]
+            when, value = (t[-1], y[-1]) if exit is not None else (None, None)
+            t, y = _thin(t, y)
+            if name == "u":
+                lines = axis.step(t, y, where="post", label=label, linewidth=1.2)
+            else:
+                lines = axis.plot(t, y, label=label, linewidth=1.2)
+            if exit is not None:
+                _mark_exit(axis, trace, when, value, limits, lines[0].get_color())
+        if name == first.tracked:
+            t, r = _thin(first.t, first.r)
+            axis.plot(t, r, "k--", linewidth=1.0, label="reference")
+        if limits:
+            axis.set_ylim(*limits)
+        label = first.input_name if name == "u" else name
+        axis.set_ylabel(LABELS.get(label, label))
+        axis.grid(True, alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize="small")
+    axes[-1, 0].set_xlabel(f"time [{time_unit}]")
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
 def _thin(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """At most about MAX_POINTS points, keeping each stretch's extremes so peaks still show."""
     n = len(t)
@@ -103,24 +120,29 @@ def _thin(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t[index], y[index]
 
 
-def _scale_to(axis, name: str, bounded: list[Trace], escaped: list[Trace]) -> None:
+def _limits(name: str, bounded: list[Trace]) -> tuple[float, float] | None:
+    """The range of the bounded runs (and the reference) with a margin."""
     values = np.concatenate([np.asarray(tr[name], dtype=float) for tr in bounded] +
                             ([bounded[0].r] if name == bounded[0].tracked else []))
     values = values[np.isfinite(values)]
     if not len(values):
-        return
+        return None
     low, high = float(values.min()), float(values.max())
     margin = 0.1 * (high - low) or 0.1 * max(abs(high), 1e-9)
-    low, high = low - margin, high + margin
-    axis.set_ylim(low, high)
-    for trace in escaped:
-        y = np.asarray(trace[name], dtype=float)
-        outside = np.nonzero(~((y >= low) & (y <= high)))[0]
-        if len(outside):
-            k = outside[0]
-            edge = high if not y[k] < low else low
-            axis.plot([trace.t[k]], [edge], marker="^" if edge == high else "v", color="red",
-                      markersize=8, clip_on=False, zorder=5)
-            axis.annotate(f"{trace.controller} leaves the plot at {trace.t[k]:.3g}",
-                          (trace.t[k], edge), textcoords="offset points",
-                          xytext=(6, -12 if edge == high else 4), fontsize="x-small", color="red")
+    return low - margin, high + margin
+
+
+def _exit(y: np.ndarray, limits: tuple[float, float]) -> int | None:
+    outside = np.nonzero(~((y >= limits[0]) & (y <= limits[1])))[0]
+    return int(outside[0]) if len(outside) else None
+
+
+def _mark_exit(axis, trace: Trace, when: float, value: float, limits: tuple[float, float],
+               color) -> None:
+    edge = limits[0] if value < limits[0] else limits[1]
+    axis.plot([when], [edge], marker="v" if edge == limits[0] else "^", color=color,
+              markersize=9, clip_on=False, zorder=5)
+    axis.annotate(f"{trace.controller} leaves the plot at {when:.3g} (its run stopped at "
+                  f"{trace.t[-1]:.3g})", (when, edge),
+                  textcoords="offset points", xytext=(8, 6 if edge == limits[0] else -12),
+                  fontsize="small", color=color)
