@@ -1,29 +1,45 @@
-"""Cost of a 10 s paper-step co-simulation (5,000 control steps of 2 ms), split into parts.
+"""Cost of a 10 s paper-step co-simulation (5,000 control steps of 2 ms), split into parts,
+what tuning pays per candidate, and command start-up.
 
     python tools/bench_cosim.py [--repeats 7]
 
 Measured in one run, best of the repeats:
-- bare:       PlantSession.step alone with the same inputs (the floor the loop stands on);
-- run:        the master's loop for the LQR (reset, loop, trace) on paper-step;
-- parts:      controller calls alone, the measurement/process noise (noise scenario minus
-              paper-step), and recording (lists to arrays);
-- end to end: load the scenario, prepare, simulate one controller, compute its metrics
-              (the FMU already built and cached).
+- bare:        PlantSession.step alone with the same inputs (the floor the loop stands on);
+- loop:        the master's loop for the LQR (reset, loop, trace) on paper-step;
+- parts:       controller calls alone, the noise (noise scenario minus paper-step), recording;
+- end to end:  load the scenario, prepare, evaluate one controller (the FMU already cached);
+- candidate:   evaluate a new controller (its own gain) on an already prepared scenario:
+               compile + run + metrics, what tuning pays per scenario per candidate; the same
+               in a worker process after its first call (the prepared scenario and the result
+               cross the process boundary each time);
+- foreign:     bare steps of the pythonfmu-built pendulum of the tests (when pythonfmu is
+               installed), against ours;
+- start-up:    ``furuta-cosim --help`` and ``list`` against ``python -c pass``.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import multiprocessing
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
-from furuta_cosim.cosim.master import prepare, run, simulate
+from furuta_cosim.controllers import load_controller
+from furuta_cosim.cosim import compile_controller, evaluate, prepare
+from furuta_cosim.cosim import evaluation
+from furuta_cosim.cosim.worker import evaluate_here
 from furuta_cosim.fmu.session import PlantSession
-from furuta_cosim.metrics import compute
 from furuta_cosim.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def best(function, repeats: int) -> float:
@@ -35,18 +51,53 @@ def best(function, repeats: int) -> float:
     return min(times)
 
 
+def candidates(count: int, seed: int = 0):
+    """LQR gains scaled entry by entry: each a new controller with its own generated code."""
+    lqr = load_controller("lqr-paper")
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        gain = lqr.controller.Dc * np.exp(rng.uniform(-0.05, 0.05, lqr.controller.Dc.shape))
+        yield dataclasses.replace(lqr, controller=dataclasses.replace(lqr.controller, Dc=gain))
+
+
+def foreign_step(repeats: int, steps: int) -> float | None:
+    if shutil.which("pythonfmu") is None:
+        return None
+    folder = Path(tempfile.mkdtemp(prefix="bench-foreign-"))
+    try:
+        subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
+                        str(ROOT / "tests" / "foreign" / "pendulum_fmu.py"), "-d", str(folder)],
+                       check=True, capture_output=True)
+        with PlantSession.open(folder / "ForeignPendulum.fmu") as plant:
+            def bare():
+                plant.reset({"pend_angle_0": 0.1})
+                plant.set_io(["voltage"], ["arm_angle", "arm_rate", "pend_angle", "pend_rate", "current"])
+                for _ in range(steps):
+                    plant.step([0.0], 2e-3)
+
+            return best(bare, max(1, repeats // 3))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def startup(argv: list[str], repeats: int) -> float:
+    return best(lambda: subprocess.run(argv, check=True, capture_output=True), repeats)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--candidates", type=int, default=50, help="candidates per timing")
     args = parser.parse_args()
     scenario = dataclasses.replace(load_scenario("paper-step"), controllers=("lqr-paper",))
     prepared = prepare(scenario)
     noisy = prepare(dataclasses.replace(load_scenario("noise"), controllers=("lqr-paper",)))
     steps, h = prepared.steps, prepared.communication_step
-    _, controller = prepared.controllers[0]
+    compiled = compile_controller(prepared, "lqr-paper")
+    compiled_noisy = compile_controller(noisy, "lqr-paper")
 
     with PlantSession.open(prepared.fmu) as plant:
-        reference = run(prepared, plant, 0)
+        reference = evaluation._run(prepared, plant, compiled, None)
         applied = reference.u.tolist()
 
         def bare():
@@ -57,38 +108,61 @@ def main() -> int:
                 step([u], h)
 
         t_bare = best(bare, args.repeats)
-        t_run = best(lambda: run(prepared, plant, 0), args.repeats)
-        t_noise_run = best(lambda: run(noisy, plant, 0), args.repeats)
-    states = np.column_stack([reference[n] for n in prepared.outputs]).tolist()
+        t_run = best(lambda: evaluation._run(prepared, plant, compiled, None), args.repeats)
+        t_noise_run = best(lambda: evaluation._run(noisy, plant, compiled_noisy, None), args.repeats)
+        pool = list(candidates(args.candidates * args.repeats))
+        t_candidate = best(lambda: [evaluate(prepared, plant, pool.pop()) for _ in range(args.candidates)],
+                           args.repeats) / args.candidates
+    states = np.column_stack([reference[n] for n in prepared.signals]).tolist()
     rbar = prepared.rbar.tolist()
 
     def controller_only():
-        control = controller.control
+        control = compiled.runtime.control
         for x, r in zip(states, rbar):
             control(x, r)
 
     t_controller = best(controller_only, args.repeats)
     t_record = best(lambda: (np.array(states).T, np.array(applied)), args.repeats)
-    t_draw = best(lambda: np.random.default_rng(7).standard_normal((steps, 7)), args.repeats)
 
     def end_to_end():
-        s = dataclasses.replace(load_scenario("paper-step"), controllers=("lqr-paper",))
+        s = load_scenario("paper-step")
         p = prepare(s)
-        traces = simulate(p)
-        compute(traces["lqr-paper"], s.reference.settles)
+        with PlantSession.open(p.fmu) as session:
+            evaluate(p, session, "lqr-paper")
 
     t_total = best(end_to_end, args.repeats)
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as workers:
+        workers.submit(evaluate_here, prepared, "lqr-paper").result()  # the worker's first call
+        remote = list(candidates(args.candidates * args.repeats, seed=1))
+        t_worker = best(lambda: [workers.submit(evaluate_here, prepared, remote.pop()).result()
+                                 for _ in range(args.candidates)], args.repeats) / args.candidates
+
+    t_foreign = foreign_step(args.repeats, steps)
+    t_pass = startup([sys.executable, "-c", "pass"], args.repeats)
+    command = [sys.executable, "-m", "furuta_cosim.cli"]
+    t_help = startup(command + ["--help"], args.repeats)
+    t_list = startup(command + ["list"], args.repeats)
+
     per = lambda seconds: seconds / steps * 1e6  # noqa: E731
     print(f"paper-step, LQR, {steps} control steps of {prepared.control_period * 1e3:g} ms, "
-          f"{int(round(prepared.control_period / h))} communication step(s) each, best of {args.repeats}")
-    print(f"{'part':38s} {'us/step':>8s} {'ms/run':>8s} {'vs bare':>8s}")
+          f"{prepared.substeps} communication step(s) each, best of {args.repeats}")
+    print(f"{'part':44s} {'us/step':>8s} {'ms/run':>8s} {'vs bare':>8s}")
     rows = [("bare PlantSession.step", t_bare), ("master loop (reset, loop, trace)", t_run),
             ("  of which controller calls", t_controller), ("  of which recording (to arrays)", t_record),
             ("noise: extra per run (noise scenario)", t_noise_run - t_run),
-            ("noise: drawing the samples", t_draw), ("end to end (load, prepare, run, metrics)", t_total)]
+            ("end to end (load, prepare, evaluate, metrics)", t_total),
+            ("new candidate on a prepared scenario", t_candidate),
+            ("  the same in a worker process", t_worker)]
+    if t_foreign is not None:
+        rows.append(("bare step of the pythonfmu pendulum", t_foreign))
     for name, seconds in rows:
-        print(f"{name:38s} {per(seconds):8.3f} {seconds * 1e3:8.2f} {seconds / t_bare:8.2f}x")
+        print(f"{name:44s} {per(seconds):8.3f} {seconds * 1e3:8.2f} {seconds / t_bare:8.2f}x")
     print(f"loop overhead over bare stepping: {(t_run - t_bare) / t_bare * 100:.0f} %")
+    print(f"\n{'command start-up':44s} {'ms':>8s} {'vs python -c pass':>18s}")
+    for name, seconds in (("python -c pass", t_pass), ("furuta-cosim --help", t_help),
+                          ("furuta-cosim list", t_list)):
+        print(f"{name:44s} {seconds * 1e3:8.1f} {seconds / t_pass:17.2f}x")
     return 0
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import control
 import numpy as np
 
 from furuta_cosim.design.linear import LinearModel, discretize
@@ -100,6 +99,8 @@ def discretize_controller(controller: GeneralizedController, period: float) -> G
     if controller.n_xc == 0:
         return GeneralizedController(controller.Ac, controller.Bc, controller.Cc, controller.Dc,
                                      period, controller.name, provenance)
+    import control  # here: python-control takes a second to import, and runs rarely need it
+
     sampled = control.c2d(control.ss(controller.Ac, controller.Bc, controller.Cc, controller.Dc),
                           period, method="zoh")
     return GeneralizedController(sampled.A, sampled.B, controller.Cc, controller.Dc, period,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import control
 import numpy as np
 
 from furuta_cosim.errors import DesignError
@@ -88,6 +87,8 @@ def discretize(model: LinearModel, period: float) -> LinearModel:
         return model
     if not period > 0:
         raise DesignError(f"the sampling period must be > 0, got {period}")
+    import control  # here: python-control takes a second to import, and runs rarely need it
+
     sampled = control.c2d(control.ss(model.A, model.B, model.C, model.D), period, method="zoh")
     return LinearModel(f"{model.name}@{period:g}s", sampled.A, sampled.B, sampled.C, sampled.D,
                        model.states, model.inputs, model.outputs, period,

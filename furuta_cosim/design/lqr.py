@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import control
 import numpy as np
 
 from furuta_cosim.defaults import PAPER_PERIOD  # noqa: F401 (re-exported: the design's default)
@@ -65,6 +64,8 @@ def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> Gene
         listed = ", ".join(f"{z.real:.4g}{z.imag:+.4g}j" for z in modes)
         raise DesignError(f"(A, B) of {model.name} is not stabilizable: mode(s) {listed} "
                           "cannot be moved by the input", "A, B")
+    import control  # here: python-control takes a second to import, and runs rarely need it
+
     if design_model.discrete:
         K, _, _ = control.dlqr(design_model.A, design_model.B, Q, R)
         method = "dlqr (zero-order hold)" if not model.discrete else "dlqr"
