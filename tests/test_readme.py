@@ -56,3 +56,10 @@ def test_main_job_runs_from_a_clean_clone_in_a_new_venv(tmp_path):
     report = json.loads((clone / "out" / "paper-step" / "metrics.json").read_text())
     assert report["passed"] and set(report["controllers"]) == {"lqr-paper", "bo-paper"}
     assert (clone / "out" / "paper-step" / "paper-step.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("index", range(len(re.findall(r"```python\n", (ROOT / "README.md").read_text()))))
+def test_readme_python_examples_run_as_written(index, tmp_path, monkeypatch):
+    block = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)[index]
+    monkeypatch.chdir(tmp_path)
+    exec(compile(block, f"README.md python block {index}", "exec"), {"__name__": "readme"})  # noqa: S102
