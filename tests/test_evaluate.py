@@ -40,7 +40,7 @@ def test_evaluate_gives_what_simulate_writes(paper_step, tmp_path, capsys):
     entry = json.loads(out)["controllers"]["lqr-paper"]
     with PlantSession.open(paper_step.fmu) as session:
         result = evaluate(paper_step, session, "lqr-paper")
-    assert result.passed and result.failure is None and result.wall_time > 0
+    assert result.passed and result.failure is None
     assert json.loads(json.dumps(result.to_dict()))["metrics"] == entry["metrics"]
     assert result.requirements == {k: {**v} for k, v in entry["requirements"].items()}
     written = Trace.from_csv(tmp_path / "lqr-paper.csv", "lqr-paper", "theta0", "V")
