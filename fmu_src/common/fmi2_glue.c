@@ -24,14 +24,30 @@ typedef enum {
     MODE_EVENT,             /* model exchange */
     MODE_CONTINUOUS_TIME,   /* model exchange */
     MODE_TERMINATED,
-    MODE_ERROR
+    MODE_ERROR,
+    N_MODES
 } Mode;
 
+/* Which modes each function is allowed in, as bit masks (the FMI 2.0 state machines). */
+#define IN(mode) (1u << (mode))
+#define SETUP (IN(MODE_INSTANTIATED) | IN(MODE_INITIALIZATION))
+#define RUNNING (IN(MODE_STEP_COMPLETE) | IN(MODE_EVENT) | IN(MODE_CONTINUOUS_TIME))
+#define AFTER (IN(MODE_TERMINATED) | IN(MODE_ERROR))
+#define ANY_MODE ((1u << N_MODES) - 1u)
+
+/* Marks a snapshot of this model, so that a serialized state from elsewhere is refused. */
+#define SNAPSHOT_MAGIC 0x46435331u /* "FCS1" */
+#define SNAPSHOT_VERSION 1u
+
 typedef struct {
+    unsigned magic;
+    unsigned version;
+    unsigned model; /* a hash of the instantiation token */
+    int type;
     ModelValues values;
     double time;
     double start_time;
-    Mode mode;
+    int mode;
 } Snapshot;
 
 typedef struct {
@@ -58,7 +74,23 @@ static fmi2Status fail(const Instance *inst, const char *format, ...) {
 static fmi2Status not_allowed(Instance *inst, const char *function) {
     static const char *const names[] = {"instantiated", "initialization", "step complete",
                                         "event", "continuous time", "terminated", "error"};
-    return fail(inst, "%s is not allowed in mode '%s'", function, names[inst->s.mode]);
+    const char *name = inst->s.mode >= 0 && inst->s.mode < N_MODES ? names[inst->s.mode] : "?";
+    return fail(inst, "%s is not allowed in mode '%s'", function, name);
+}
+
+/* fmi2OK when the instance exists and may call `function` in its current mode. */
+static fmi2Status allowed(Instance *inst, const char *function, unsigned modes) {
+    if (!inst) return fmi2Error;
+    if (inst->s.mode < 0 || inst->s.mode >= N_MODES || !(IN(inst->s.mode) & modes))
+        return not_allowed(inst, function);
+    return fmi2OK;
+}
+
+static unsigned token_hash(void) {
+    const char *p;
+    unsigned h = 2166136261u; /* FNV-1a */
+    for (p = INSTANTIATION_TOKEN; *p; p++) h = (h ^ (unsigned char)*p) * 16777619u;
+    return h;
 }
 
 static void apply_start_values(ModelValues *values) {
@@ -83,8 +115,9 @@ static fmi2Status check_real(Instance *inst, int vr, double value) {
 }
 
 static fmi2Status check_integer(Instance *inst, int k, int value) {
-    if (value < INTEGER_MIN[k])
-        return fail(inst, "%s = %d must be >= %d", INTEGER_NAMES[k], value, INTEGER_MIN[k]);
+    if (value < INTEGER_MIN[k] || value > INTEGER_MAX[k])
+        return fail(inst, "%s = %d must be in [%d, %d]", INTEGER_NAMES[k], value, INTEGER_MIN[k],
+                     INTEGER_MAX[k]);
     return fmi2OK;
 }
 
@@ -98,6 +131,35 @@ static fmi2Status check_all(Instance *inst) {
         if (check_integer(inst, k, inst->s.values.i[k]) != fmi2OK) return fmi2Error;
     if (model_check(&inst->s.values, reason, sizeof reason) != 0)
         return fail(inst, "%s", reason);
+    return fmi2OK;
+}
+
+/* Every value of a snapshot, as fmi2SetFMUstate would take it: the mark of this model, a mode
+ * that exists and fits the instance's interface, finite times, and parameters and inputs
+ * the model accepts. Outputs and states must be finite. */
+static fmi2Status check_snapshot(Instance *inst, const Snapshot *snapshot) {
+    int k;
+    Instance probe;
+    if (snapshot->magic != SNAPSHOT_MAGIC || snapshot->version != SNAPSHOT_VERSION ||
+        snapshot->model != token_hash())
+        return fail(inst, "the FMU state was not made by this model (%s)", MODEL_IDENTIFIER_STRING);
+    if (snapshot->type != (int)inst->type)
+        return fail(inst, "the FMU state is of the other interface (co-simulation/model exchange)");
+    if (snapshot->mode < 0 || snapshot->mode >= N_MODES)
+        return fail(inst, "the FMU state has an invalid mode %d", snapshot->mode);
+    if ((inst->type == fmi2CoSimulation &&
+         (snapshot->mode == MODE_EVENT || snapshot->mode == MODE_CONTINUOUS_TIME)) ||
+        (inst->type == fmi2ModelExchange && snapshot->mode == MODE_STEP_COMPLETE))
+        return fail(inst, "the FMU state's mode %d does not exist in this interface", snapshot->mode);
+    if (!isfinite(snapshot->time) || !isfinite(snapshot->start_time))
+        return fail(inst, "the FMU state's time is not finite");
+    for (k = 0; k < N_REALS; k++)
+        if (!isfinite(snapshot->values.r[k]))
+            return fail(inst, "the FMU state's %s is not finite", REAL_NAMES[k]);
+    /* parameters and inputs against the model's own checks, without touching the instance */
+    probe = *inst;
+    probe.s = *snapshot;
+    if (check_all(&probe) != fmi2OK) return fail(inst, "the FMU state holds invalid values");
     return fmi2OK;
 }
 
@@ -204,7 +266,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
 
 fmi2Status fmi2Terminate(fmi2Component c) {
     Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
+    if (allowed(inst, "fmi2Terminate", RUNNING) != fmi2OK) return fmi2Error;
     inst->s.mode = MODE_TERMINATED;
     return fmi2OK;
 }
@@ -325,17 +387,24 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state) {
     Instance *inst = (Instance *)c;
     Snapshot *snapshot;
-    if (!inst || !state) return fmi2Error;
+    if (allowed(inst, "fmi2GetFMUstate", ANY_MODE) != fmi2OK) return fmi2Error;
+    if (!state) return fail(inst, "fmi2GetFMUstate: state is NULL");
     snapshot = (Snapshot *)(*state ? *state : malloc(sizeof(Snapshot)));
     if (!snapshot) return fail(inst, "out of memory");
     *snapshot = inst->s;
+    snapshot->magic = SNAPSHOT_MAGIC;
+    snapshot->version = SNAPSHOT_VERSION;
+    snapshot->model = token_hash();
+    snapshot->type = (int)inst->type;
     *state = snapshot;
     return fmi2OK;
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state) {
     Instance *inst = (Instance *)c;
-    if (!inst || !state) return fmi2Error;
+    if (allowed(inst, "fmi2SetFMUstate", ANY_MODE & ~IN(MODE_ERROR)) != fmi2OK) return fmi2Error;
+    if (!state) return fail(inst, "fmi2SetFMUstate: state is NULL");
+    if (check_snapshot(inst, (const Snapshot *)state) != fmi2OK) return fmi2Error;
     inst->s = *(const Snapshot *)state;
     return fmi2OK;
 }
@@ -369,12 +438,15 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size
                                    fmi2FMUstate *state) {
     Instance *inst = (Instance *)c;
     if (!inst || !bytes || !state) return fmi2Error;
+    Snapshot copy;
     if (size != sizeof(Snapshot))
         return fail(inst, "serialized FMU state has %u bytes, expected %u", (unsigned)size,
                      (unsigned)sizeof(Snapshot));
+    memcpy(&copy, bytes, sizeof copy);
+    if (check_snapshot(inst, &copy) != fmi2OK) return fmi2Error;
     if (!*state) *state = malloc(sizeof(Snapshot));
     if (!*state) return fail(inst, "out of memory");
-    memcpy(*state, bytes, sizeof(Snapshot));
+    memcpy(*state, &copy, sizeof copy);
     return fmi2OK;
 }
 
@@ -453,6 +525,9 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     if (!(communicationStepSize > 0.0) || !isfinite(communicationStepSize))
         return fail(inst, "communication step size %g must be finite and > 0",
                      communicationStepSize);
+    if (!isfinite(currentCommunicationPoint) ||
+        !isfinite(currentCommunicationPoint + communicationStepSize))
+        return fail(inst, "communication point %g is not finite", currentCommunicationPoint);
     tolerance = 1e-9 * fmax(1.0, fabs(inst->s.time));
     if (fabs(currentCommunicationPoint - inst->s.time) > tolerance)
         return fail(inst, "communication point %.17g does not match the model time %.17g",
@@ -566,7 +641,9 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
     Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
+    if (allowed(inst, "fmi2SetTime", IN(MODE_EVENT) | IN(MODE_CONTINUOUS_TIME)) != fmi2OK)
+        return fmi2Error;
+    if (!isfinite(time)) return fail(inst, "time %g is not finite", time);
     inst->s.time = time;
     return fmi2OK;
 }
@@ -574,20 +651,24 @@ fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
 fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
     Instance *inst = (Instance *)c;
     size_t k;
-    if (!inst || (nx > 0 && !x)) return fmi2Error;
+    if (allowed(inst, "fmi2SetContinuousStates", IN(MODE_CONTINUOUS_TIME)) != fmi2OK)
+        return fmi2Error;
+    if (nx > 0 && !x) return fail(inst, "fmi2SetContinuousStates: x is NULL");
     if (nx != N_STATES) return fail(inst, "expected %d states, got %u", N_STATES, (unsigned)nx);
-    for (k = 0; k < nx; k++) {
+    for (k = 0; k < nx; k++)
         if (!isfinite(x[k]))
             return fail(inst, "state %s = %g is not finite", REAL_NAMES[STATE_VR[k]], x[k]);
-        inst->s.values.r[STATE_VR[k]] = x[k];
-    }
+    for (k = 0; k < nx; k++) inst->s.values.r[STATE_VR[k]] = x[k];
     model_outputs(&inst->s.values);
     return fmi2OK;
 }
 
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
     Instance *inst = (Instance *)c;
-    if (!inst || (nx > 0 && !derivatives)) return fmi2Error;
+    if (allowed(inst, "fmi2GetDerivatives",
+                IN(MODE_INITIALIZATION) | IN(MODE_EVENT) | IN(MODE_CONTINUOUS_TIME) | AFTER) != fmi2OK)
+        return fmi2Error;
+    if (nx > 0 && !derivatives) return fail(inst, "fmi2GetDerivatives: derivatives is NULL");
     if (nx != N_STATES) return fail(inst, "expected %d states, got %u", N_STATES, (unsigned)nx);
 #if MODEL_DISCRETE
     return fail(inst, "a discrete-time model has no derivatives");
@@ -597,6 +678,10 @@ fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx
         size_t k;
         for (k = 0; k < nx; k++) x[k] = inst->s.values.r[STATE_VR[k]];
         model_derivatives(&inst->s.values, x, derivatives);
+        for (k = 0; k < nx; k++)
+            if (!isfinite(derivatives[k]))
+                return fail(inst, "the derivative of %s is not finite (%g) at this state and these "
+                             "parameters", REAL_NAMES[STATE_VR[k]], derivatives[k]);
         for (k = 0; k < nx; k++) inst->s.values.r[STATE_DER_VR[k]] = derivatives[k];
         return fmi2OK;
     }
@@ -612,7 +697,10 @@ fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], s
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
     Instance *inst = (Instance *)c;
     size_t k;
-    if (!inst || (nx > 0 && !x)) return fmi2Error;
+    if (allowed(inst, "fmi2GetContinuousStates",
+                IN(MODE_INITIALIZATION) | IN(MODE_EVENT) | IN(MODE_CONTINUOUS_TIME) | AFTER) != fmi2OK)
+        return fmi2Error;
+    if (nx > 0 && !x) return fail(inst, "fmi2GetContinuousStates: x is NULL");
     if (nx != N_STATES) return fail(inst, "expected %d states, got %u", N_STATES, (unsigned)nx);
     for (k = 0; k < nx; k++) x[k] = inst->s.values.r[STATE_VR[k]];
     return fmi2OK;

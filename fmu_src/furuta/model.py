@@ -4,7 +4,7 @@ The start values of the physical parameters come from the plant's default parame
 (``scenarios/plants/paper-calibrated.yaml``), so each number lives in one place.
 """
 
-from furuta_cosim.fmu.declaration import Integer, Model, Real
+from furuta_cosim.fmu.declaration import MAX_SUBSTEPS, Integer, Model, Real
 
 DEFAULT_PARAMETER_SET = "paper-calibrated"
 
@@ -54,6 +54,7 @@ def declare(parameters):
     model.register_variable(Real("V_max", "parameter", start=float(parameters["V_max"]),
                                  unit="V", description="voltage limit |V| <= V_max; 0 = no limit"))
     model.register_variable(Integer("n_substeps", int(parameters["n_substeps"]), minimum=1,
+                                    maximum=MAX_SUBSTEPS,
                                     description="RK4 substeps per communication step"))
     model.substeps = "n_substeps"
     return model

@@ -8,7 +8,7 @@ so one binary serves every plant of the same dimensions; ``v`` is a process-nois
 state, and the full state is an output besides ``y``.
 """
 
-from furuta_cosim.fmu.declaration import Integer, Model, Real
+from furuta_cosim.fmu.declaration import MAX_SUBSTEPS, Integer, Model, Real
 
 
 def _matrix(model, name, rows, description):
@@ -46,7 +46,7 @@ def declare(spec):
         model.sample_period = "Ts"
     else:
         model.register_variable(Integer("n_substeps", spec.substeps, minimum=1,
-                                        description="RK4 substeps per communication step"))
+                                        maximum=MAX_SUBSTEPS, description="RK4 substeps per communication step"))
         model.substeps = "n_substeps"
     model.constants = constants
     return model

@@ -104,6 +104,7 @@ def generate_header(model: Model, guid: str) -> str:
               table("char *const", "INTEGER_NAMES", [f'"{v.name}"' for v in integers], len(integers)),
               table("int", "INTEGER_START", [str(v.start) for v in integers], len(integers)),
               table("int", "INTEGER_MIN", [str(v.minimum) for v in integers], len(integers)),
+              table("int", "INTEGER_MAX", [str(v.maximum) for v in integers], len(integers)),
               table("int", "STATE_VR", [str(model.value_reference(s.name)) for s in model.states],
                     len(model.states)),
               table("int", "STATE_START_VR",
@@ -175,7 +176,8 @@ def generate_model_description(model: Model, guid: str, sources: list[str]) -> s
             attributes["description"] = v.description
         element = ET.SubElement(variables, "ScalarVariable", attributes)
         index[v.name] = len(model.reals) + k + 1
-        ET.SubElement(element, "Integer", {"start": str(v.start)})
+        ET.SubElement(element, "Integer", {"start": str(v.start), "min": str(v.minimum),
+                                           "max": str(v.maximum)})
     for state in model.states:
         if state.derivative:
             element = variables[index[state.derivative] - 1].find("Real")
