@@ -135,3 +135,27 @@ def test_a_set_with_a_bad_value_names_it(tmp_path):
     bad.write_text("model: furuta\nextends: paper-calibrated\nparameters: {C1: lots}\n")
     with pytest.raises(ConfigError, match=r"bad.yaml: parameters.C1: expected a number, got a string \('lots'\)"):
         load_plant(bad)
+
+
+@pytest.mark.parametrize("line, expected", [
+    ("n_substeps: 2.5", "parameters.n_substeps: expected a whole number, got 2.5"),
+    ("n_substeps: 0", "parameters.n_substeps: must be a whole number in [1, 1000], got 0"),
+    ("n_substeps: 2147483647", "parameters.n_substeps: must be a whole number in [1, 1000]"),
+    ("m_p: 0", "parameters.m_p: must be > 0, got 0"),
+    ("C0: -1", "parameters: the FMU refuses these values: C0 = -1"),
+    ("V_max: -1", "parameters: the FMU refuses these values: "),
+])
+def test_build_fmu_refuses_a_set_the_fmu_would_reject(tmp_path, capsys, line, expected):
+    path = tmp_path / "bad.yaml"
+    path.write_text(f"model: furuta\nextends: paper-calibrated\nparameters: {{{line}}}\n")
+    assert main(["build-fmu", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"error: {path}: {expected}" in err and len(err.strip().splitlines()) <= 2
+    # nothing is left in the cache for it
+    assert main(["build-fmu", str(path)]) == 2
+
+
+def test_an_integer_override_beyond_32_bits_is_an_error(furuta_fmu):
+    with PlantSession.open(furuta_fmu) as plant:
+        with pytest.raises(FmuError, match="n_substeps must be a whole number"):
+            plant.reset({"n_substeps": 1.0e10})

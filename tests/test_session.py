@@ -1,5 +1,8 @@
 """The plant session and the FMI glue behind it: isolation, reset, FMU state, time, memory."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from fmpy import calloc, free
@@ -144,3 +147,25 @@ def test_serialized_state_round_trips(slave):
     assert slave.getReal(vr) == before
     slave.freeFMUstate(state)
     slave.freeFMUstate(restored)
+
+
+@pytest.mark.slow
+def test_opening_and_closing_sessions_does_not_grow_memory(furuta_fmu):
+    """A tuning worker opens sessions for hours: 10,000 cycles stay under 5 MB of growth
+    (measured in a fresh process, after 200 cycles of warm-up)."""
+    script = f"""
+import os
+from furuta_cosim.fmu.session import PlantSession
+def rss():
+    return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+for _ in range(200):
+    with PlantSession.open({str(furuta_fmu)!r}) as plant:
+        plant.reset()
+before = rss()
+for _ in range(10_000):
+    with PlantSession.open({str(furuta_fmu)!r}) as plant:
+        plant.reset()
+print(rss() - before)
+"""
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert int(result.stdout) < 5_000_000, f"grew {int(result.stdout) / 1e6:.1f} MB"

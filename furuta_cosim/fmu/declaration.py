@@ -19,7 +19,14 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?$|^der\([A-Za
 
 
 class DeclarationError(FmuError):
-    """A plant declaration (``fmu_src/<model>/model.py``) that cannot become an FMU."""
+    """A plant declaration (``fmu_src/<model>/model.py``) that cannot become an FMU.
+
+    ``variable`` names the variable at fault when one is, and ``reason`` says why, so that a
+    caller can point at the parameter file's key instead."""
+
+    def __init__(self, message: str, variable: str | None = None, reason: str = ""):
+        super().__init__(message)
+        self.variable, self.reason = variable, reason or message
 
 
 @dataclass(frozen=True)
@@ -96,15 +103,21 @@ class Model:
             raise DeclarationError(
                 f"{self.identifier}.{variable.name}: causality must be one of {CAUSALITIES}")
         if isinstance(variable, Integer):
+            if not variable.minimum <= variable.start <= variable.maximum:
+                reason = f"must be a whole number in [{variable.minimum}, {variable.maximum}], got {variable.start}"
+                raise DeclarationError(f"{self.identifier}.{variable.name}: start {reason}",
+                                       variable.name, reason)
             self.integers.append(variable)
             return
         if variable.causality in ("parameter", "input"):
             if variable.start is None or not math.isfinite(variable.start):
                 raise DeclarationError(
-                    f"{self.identifier}.{variable.name}: a {variable.causality} needs a finite start")
+                    f"{self.identifier}.{variable.name}: a {variable.causality} needs a finite start",
+                    variable.name, "must be finite")
             if variable.positive and variable.start <= 0:
                 raise DeclarationError(
-                    f"{self.identifier}.{variable.name}: start {variable.start} must be > 0")
+                    f"{self.identifier}.{variable.name}: start {variable.start} must be > 0",
+                    variable.name, f"must be > 0, got {variable.start:g}")
         self.reals.append(variable)
 
     def register_state(self, name: str, start: float, unit: str, description: str) -> None:

@@ -23,7 +23,7 @@ import fmpy
 
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
-from furuta_cosim.fmu.declaration import Model
+from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 
 GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
@@ -52,6 +52,16 @@ def declaration(plant: PlantSet) -> Model:
             model = module.declare(dict(plant.parameters))
         except KeyError as error:
             raise ConfigError([f"{plant.path}: parameters.{error.args[0]}: missing"]) from None
+        except DeclarationError as error:
+            if error.variable in plant.parameters:
+                raise ConfigError([f"{plant.path}: parameters.{error.variable}: {error.reason}"]) from None
+            raise
+        # the declaration takes int() of an Integer's start: 2.5 would quietly become 2
+        fractional = [f"{plant.path}: parameters.{v.name}: expected a whole number, got "
+                      f"{plant.parameters[v.name]:g}" for v in model.integers
+                      if v.name in plant.parameters and plant.parameters[v.name] != int(plant.parameters[v.name])]
+        if fractional:
+            raise ConfigError(fractional)
         known = {v.name for v in model.reals if v.causality == "parameter"}
         known |= {v.name for v in model.integers}
         unknown = sorted(set(plant.parameters) - known)
@@ -293,7 +303,22 @@ def _build_cached(plant: PlantSet, log) -> Path:
             log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
         files["model_vars.h"] = generate_header(model, guid)
         _build(model, files, guid, compiler, target)
+        _accepts_its_defaults(plant, target)
     return target
+
+
+def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
+    """Initialize the new FMU with its own start values; a set the FMU's checks refuse (C0 < 0,
+    say) is an error of the plant file, and no FMU is left in the cache for it."""
+    from furuta_cosim.fmu.session import PlantSession
+
+    try:
+        with PlantSession.open(target) as session:
+            session.reset()
+    except FmuError as error:
+        target.unlink(missing_ok=True)
+        reason = str(error).split("failed: ", 1)[-1]
+        raise ConfigError([f"{plant.path}: parameters: the FMU refuses these values: {reason}"]) from None
 
 
 def _build(model: Model, files: dict, guid: str, compiler: str, target: Path) -> None:

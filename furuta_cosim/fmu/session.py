@@ -154,6 +154,11 @@ class FmuBinary:
     def close(self) -> None:
         if self.lib is not None:
             _FFI.dlclose(self.lib)
+            # cffi's FFI keeps every library it opened in a list, even closed ones: about 9 KB
+            # per open, which a tuning worker opening sessions for hours would feel
+            opened = getattr(_FFI, "_libraries", None)
+            if isinstance(opened, list) and self.lib in opened:
+                opened.remove(self.lib)
             self.lib = None
             shutil.rmtree(self.directory, ignore_errors=True)
 
@@ -269,8 +274,9 @@ class PlantSession:
                 raise FmuError(f"{self.binary.identifier}: {name} is a {variable.causality}, "
                                "it cannot be set")
             if variable.type == "Integer":
-                if value != int(value):
-                    raise FmuError(f"{self.binary.identifier}: {name} must be a whole number, got {value}")
+                if not math.isfinite(value) or value != int(value) or not -2**31 <= value < 2**31:
+                    raise FmuError(f"{self.binary.identifier}: {name} must be a whole number "
+                                   f"(32 bits), got {value}")
                 integers.append((variable.valueReference, int(value)))
             else:
                 if not math.isfinite(value):
