@@ -8,6 +8,7 @@ problems, never silently skipped.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
@@ -17,24 +18,95 @@ from furuta_cosim.errors import ConfigError
 
 # libyaml's safe loader when PyYAML was built with it: the same documents, several times faster
 _SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+# a project file is a few kilobytes; these bounds keep a hostile one from taking the machine
+MAX_BYTES = 1_000_000
+MAX_NODES = 200_000     # nodes with every alias expanded (an alias bomb has billions)
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
+
+
+class _DuplicateKey(yaml.YAMLError):
+    def __init__(self, key, first: int, again: int):
+        super().__init__(f"duplicate key {key!r}")
+        self.key, self.first, self.again = key, first, again
+
+
+class _StrictLoader(_SAFE_LOADER):
+    """The safe loader, refusing a key that appears twice in one mapping (PyYAML keeps the
+    last one silently)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    first = seen.get(key)
+                except TypeError:
+                    continue  # an unhashable key: the base constructor reports it
+                if first is not None:
+                    raise _DuplicateKey(key, first, line)
+                seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def _expanded_size(node, sizes: dict) -> int:
+    """The number of nodes with every alias expanded, counted without expanding them."""
+    known = sizes.get(id(node))
+    if known is not None:
+        return known
+    sizes[id(node)] = 1  # a recursive alias counts once: the constructor refuses nothing here
+    if isinstance(node, yaml.SequenceNode):
+        total = 1 + sum(_expanded_size(child, sizes) for child in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        total = 1 + sum(_expanded_size(k, sizes) + _expanded_size(v, sizes) for k, v in node.value)
+    else:
+        total = 1
+    sizes[id(node)] = total
+    return total
 
 
 def load_yaml(path: str | Path) -> Any:
-    """Parse a YAML file with a safe loader; a missing file or a syntax error becomes a ConfigError."""
+    """Parse a YAML file with a safe loader. A missing file, a syntax error, a duplicate key,
+    a file over 1 MB or one whose aliases expand to over 200,000 nodes is a ConfigError."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as handle:
+            raw = handle.read(MAX_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError([f"{path}: file not found"]) from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as error:
+    except (IsADirectoryError, PermissionError, OSError) as error:
         raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
+    if len(raw) > MAX_BYTES:
+        raise ConfigError([f"{path}: larger than {MAX_BYTES // 1_000_000} MB: not a furuta-cosim file"])
     try:
-        return yaml.load(text, Loader=_SAFE_LOADER)  # noqa: S506 (a safe loader)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError([f"{path}: cannot be read (not UTF-8 text)"]) from None
+    loader = _StrictLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        nodes = _expanded_size(node, {})
+        if nodes > MAX_NODES:
+            raise ConfigError([f"{path}: its aliases expand to {nodes:,} nodes (at most "
+                               f"{MAX_NODES:,}): not a furuta-cosim file"])
+        return loader.construct_document(node)
+    except _DuplicateKey as error:
+        raise ConfigError([f"{path}: line {error.again}: duplicate key {error.key!r} "
+                           f"(first at line {error.first})"]) from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else "?"
         reason = getattr(error, "problem", None) or str(error)
         raise ConfigError([f"{path}: {where}: invalid YAML ({reason})"]) from None
+    except RecursionError:
+        raise ConfigError([f"{path}: nested too deeply: not a furuta-cosim file"]) from None
+    finally:
+        loader.dispose()
 
 
 def resolve_file(name: str | Path, folder: Path, kind: str, *, beside: Path | None = None,
@@ -155,6 +227,22 @@ class Checker:
         if choices and value not in choices:
             self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
             return None
+        return value
+
+    def file_name(self, value: Any, key: str) -> str | None:
+        """A name that becomes part of file names (traces, figures): a plain name."""
+        text = self.string(value, key)
+        if text is not None and not _NAME.match(text):
+            self.fail(key, f"must be a plain name (letters, digits, '.', '_', '+', '-'; it names "
+                           f"output files), got {text!r}")
+            return None
+        return text
+
+    def text(self, value: Any, key: str) -> str:
+        """Free text (a description); anything but a string is a problem."""
+        if not isinstance(value, str):
+            self.fail(key, f"expected text, got {_kind(value)}")
+            return ""
         return value
 
     def names(self, value: Any, key: str, length: int | None = None) -> list[str] | None:

@@ -104,8 +104,9 @@ def load_controller(name: str | Path, beside: Path | None = None) -> ControllerF
     provenance = top.get("provenance", {})
     if not isinstance(provenance, dict):
         check.fail("provenance", "expected a mapping")
+    name = check.file_name(top["name"], "name") if "name" in top else path.stem
+    description = check.text(top["description"], "description") if "description" in top else ""
     check.done()
-    name = str(top.get("name") or path.stem)
     try:
         if kind == "static":
             controller = GeneralizedController.static(
@@ -115,8 +116,8 @@ def load_controller(name: str | Path, beside: Path | None = None) -> ControllerF
                                                period if time == "discrete" else 0.0, name, provenance)
     except DesignError as error:
         raise ConfigError([f"{path}: {error}"]) from None
-    return ControllerFile(controller, period or 0.0, model, tracked, F,
-                          str(top.get("description", "")), path, provenance)
+    return ControllerFile(controller, period or 0.0, model, tracked, F, description, path,
+                          provenance)
 
 
 def _check_shapes(check: Checker, Ac, Bc, Cc, Dc) -> None:

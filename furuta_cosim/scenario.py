@@ -199,8 +199,10 @@ def load_scenario(name: str | Path) -> Scenario:
     plot = ()
     if "plot" in top:
         plot = tuple(check.names(top["plot"], "plot") or ())
+    name = check.file_name(top["name"], "name") if "name" in top else path.stem
+    description = check.text(top["description"], "description") if "description" in top else ""
     check.done()
-    return Scenario(str(top.get("name") or path.stem), str(top.get("description", "")), path,
+    return Scenario(name, description, path,
                     plant, overrides, initial, control_input, *timing, reference, noise,
                     disturbances, limit, controllers, estimator, requirements, window, plot,
                     fmu, mapping)

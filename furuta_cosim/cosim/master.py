@@ -31,6 +31,11 @@ from furuta_cosim.fmu.session import model_description
 from furuta_cosim.metrics import catalogue, problem
 from furuta_cosim.scenario import Scenario
 
+# A run keeps its trace in memory: about 300 bytes per sample with the pendulum's signals.
+MAX_STEPS = 10_000_000
+BYTES_PER_SAMPLE = 300
+MAX_SUBSTEPS_PER_SAMPLE = 10_000
+
 
 @dataclass
 class Prepared:
@@ -133,6 +138,11 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
         if name not in parameters:
             fail(f"plant.overrides.{name}", f"not a parameter of {plant.name if plant else identifier} "
                  f"(parameters: {', '.join(sorted(parameters))})")
+        elif variables[name].type == "Integer":
+            low, high = (float(b) if b is not None else None for b in (variables[name].min, variables[name].max))
+            if value != int(value) or (low is not None and value < low) or (high is not None and value > high):
+                fail(f"plant.overrides.{name}", f"expected a whole number in [{low:g}, {high:g}], got {value:g}"
+                     if low is not None and high is not None else f"expected a whole number, got {value:g}")
         start[name] = value
 
     view = _view(scenario, variables, identifier, fail)
@@ -288,22 +298,35 @@ def state_names_of(variables: dict) -> list[str]:
 
 
 def _timing(scenario: Scenario, plant: PlantSet | None, fail) -> tuple[float, float, int, str]:
+    """Control period, communication step, number of samples and time unit. Runs beyond the
+    documented limits are refused with an estimate, before anything is allocated."""
     linear = plant.linear if plant else None
     sample = linear.period if linear and linear.discrete else None
     unit = linear.time_unit if linear else "s"
     period = scenario.control_period or sample or PAPER_PERIOD
     step = scenario.communication_step or period
     ratio = period / step
+    if not ratio <= MAX_SUBSTEPS_PER_SAMPLE:
+        fail("timing.communication_step", f"{ratio:.3g} communication steps per control period; "
+             f"at most {MAX_SUBSTEPS_PER_SAMPLE:,}")
+        return period, step, 0, unit
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         fail("timing.control_period", f"must be a whole multiple of timing.communication_step "
              f"({step:g}), got {period:g}")
     if sample:
         k = step / sample
-        if abs(k - round(k)) > 1e-9 * k or round(k) < 1:
+        if not k <= MAX_SUBSTEPS_PER_SAMPLE or abs(k - round(k)) > 1e-9 * k or round(k) < 1:
             fail("timing.communication_step", f"must be a whole number of the plant's sample "
                  f"periods ({sample:g}), got {step:g}")
-    steps = int(math.floor(scenario.duration / period + 1e-9))
-    return period, step, max(steps, 0), unit
+    samples = scenario.duration / period
+    if not samples <= MAX_STEPS:
+        estimate = (f"{samples:.3g} samples, whose trace alone would need about "
+                    f"{samples * BYTES_PER_SAMPLE / 1e9:.3g} GB" if math.isfinite(samples)
+                    else "more samples than a float counts")
+        fail("timing.duration", f"{scenario.duration:g} {unit} at a control period of {period:g} "
+             f"{unit} is {estimate}; a run holds at most {MAX_STEPS:,} samples")
+        return period, step, 0, unit
+    return period, step, max(int(math.floor(samples + 1e-9)), 0), unit
 
 
 def _kalman(prepared: Prepared, state_outputs: list[str]) -> tuple:

@@ -87,7 +87,7 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         known = sorted(p.name for p in paths.fmu_sources().iterdir() if (p / "model.py").is_file())
         check.fail("model", f"no plant model {model!r} in fmu_src (known: {', '.join(known)})")
         check.done()
-    description = top.get("description", "")
+    description = check.text(top["description"], "description") if "description" in top else ""
     if model == "linear":
         return PlantSet(path.stem, path, model, str(description), linear=_linear(top, path, check))
     parameters = {}
