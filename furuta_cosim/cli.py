@@ -15,7 +15,14 @@ EXIT_BAD_INPUT = 2
 
 
 def cmd_build_fmu(args) -> int:
+    from pathlib import Path
+
+    from furuta_cosim.files import output_file, output_folder
     from furuta_cosim.fmu.exporter import build_fmu
+
+    if args.output:
+        wanted = Path(args.output)
+        (output_file if wanted.suffix == ".fmu" else output_folder)(wanted)
 
     path = build_fmu(args.model, output=args.output, log=lambda line: print(line, file=sys.stderr))
     print(path)
@@ -107,6 +114,10 @@ def cmd_design_lqr(args) -> int:
 
     if not args.continuous and not args.period > 0:
         raise DesignError(f"--period: must be > 0, got {args.period}")
+    if args.output:
+        from furuta_cosim.files import output_file
+
+        output_file(args.output)
     model = load_model(args.model)
     Q = _weights(args.Q, model.n, "--Q")
     R = _weights(args.R, model.B.shape[1], "--R")
@@ -365,10 +376,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: every partial file and temporary folder is removed."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
+
     from furuta_cosim.errors import ConfigError, DesignError, FmuError
 
     args = build_parser().parse_args(argv)
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (an embedding program): leave its handler alone
+        previous = None
     try:
         return args.handler(args)
     except (ConfigError, DesignError) as error:
@@ -378,9 +403,15 @@ def main(argv: list[str] | None = None) -> int:
     except FmuError as error:
         print(f"error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except _Terminated:
+        print("terminated: no file was left half-written", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted: no file was left half-written", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from furuta_cosim.design.controller import GeneralizedController
 from furuta_cosim.design.linear import LinearModel
 from furuta_cosim.design.prefilter import prefilter
 from furuta_cosim.errors import ConfigError, DesignError
+from furuta_cosim.files import output_file, write_text
 
 KEYS = ("name", "type", "time", "period", "K", "Ac", "Bc", "Cc", "Dc", "model", "prefilter",
         "provenance", "description")
@@ -223,11 +224,7 @@ def controller_document(cfile: ControllerFile) -> dict:
 
 def save_controller(cfile: ControllerFile, path: str | Path) -> Path:
     """Write a controller file that :func:`load_controller` reads back unchanged."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(controller_document(cfile), sort_keys=False, default_flow_style=None,
                           width=100)
-    partial = path.with_suffix(path.suffix + ".partial")
-    partial.write_text(f"# Written by furuta-cosim; see provenance for how it was designed.\n{text}")
-    partial.replace(path)
-    return path
+    return write_text(output_file(path),
+                      f"# Written by furuta-cosim; see provenance for how it was designed.\n{text}")

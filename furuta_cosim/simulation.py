@@ -7,13 +7,13 @@ The command-line interface only formats what :func:`simulate_scenario` returns.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Callable, Sequence
 
 from furuta_cosim.cosim.evaluation import evaluate, scenario_controllers
 from furuta_cosim.cosim.master import prepare
 from furuta_cosim.errors import ConfigError, FmuError
+from furuta_cosim.files import output_folder, write_text
 from furuta_cosim.scenario import Scenario
 
 
@@ -51,17 +51,6 @@ def unchecked_requirements(scenario: Scenario, running: Sequence[str]) -> list[s
     return notes
 
 
-def check_output_folder(folder: Path) -> None:
-    """Fail before any run when the output folder cannot be used."""
-    if folder.exists() and not folder.is_dir():
-        raise ConfigError([f"-o {folder}: exists and is not a folder"])
-    probe = folder
-    while not probe.exists():
-        probe = probe.parent
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise ConfigError([f"-o {folder}: {probe} is not writable"])
-
-
 def simulate_scenario(scenario: Scenario, output: str | Path, *,
                       controllers: Sequence | None = None, fmu: str | Path | None = None,
                       every: int = 1, traces: bool = True,
@@ -79,8 +68,8 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
 
     if every < 1:
         raise ConfigError([f"--every: must be a whole number >= 1, got {every}"])
-    out = Path(output)
-    check_output_folder(out)
+    out = output_folder(output)
+    earlier = _files_of_earlier_run(out)
     prepared = prepare(scenario, fmu=fmu)
     compiled = scenario_controllers(prepared, controllers)
     notes = unchecked_requirements(scenario, [c.name for c in compiled])
@@ -114,15 +103,19 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
                 "unchecked": notes, "figures": [str(f) for f in figures],
                 "files": sorted(written + ["metrics.json"]),
                 "passed": all(r.passed for r in results.values())}
-    _write_json(out / "metrics.json", document)
+    write_text(out / "metrics.json", json.dumps(document, indent=2, allow_nan=False) + "\n")
+    for name in earlier - set(document["files"]):
+        (out / name).unlink(missing_ok=True)  # an earlier run's file this run did not write
     return document, results
 
 
-def _write_json(path: Path, document: dict) -> None:
-    partial = path.with_name(f".{path.name}.partial")
+def _files_of_earlier_run(folder: Path) -> set[str]:
+    """The files an earlier run's metrics.json lists in ``folder`` (only those: a user's own
+    files there are never touched)."""
     try:
-        partial.write_text(json.dumps(document, indent=2, allow_nan=False) + "\n")
-        partial.replace(path)
-    finally:
-        partial.unlink(missing_ok=True)
+        listed = json.loads((folder / "metrics.json").read_text()).get("files", [])
+    except (OSError, ValueError, AttributeError):
+        return set()
+    return {name for name in listed if isinstance(name, str) and Path(name).name == name
+            and name not in ("", ".", "..")}
 

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from furuta_cosim.files import atomic
+
 
 @dataclass
 class Trace:
@@ -35,17 +37,11 @@ class Trace:
     def to_csv(self, path: str | Path, every: int = 1) -> Path:
         """Write every ``every``-th sample (the first included) to ``path``, atomically: the
         file appears under its name only once it is complete."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f".{path.name}.partial")
-        try:
+        with atomic(path) as partial:
             with partial.open("w", newline="") as handle:
                 writer = csv.writer(handle)
                 writer.writerow(self.columns())
                 writer.writerows(np.column_stack([self[c][::every] for c in self.columns()]).tolist())
-            partial.replace(path)
-        finally:
-            partial.unlink(missing_ok=True)
         return path
 
     @classmethod

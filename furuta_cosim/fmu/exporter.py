@@ -23,6 +23,7 @@ import fmpy
 
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
+from furuta_cosim.files import copy
 from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 
@@ -266,9 +267,7 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
         output = Path(output)
         if output.is_dir() or output.suffix != ".fmu":
             output = output / f"{target.name.rsplit('-', 1)[0]}.fmu"  # <Identifier>.fmu
-        output.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(target, output)
-        return output
+        return copy(target, output)
     return target
 
 

@@ -98,7 +98,10 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         if base_path.suffix in (".yaml", ".yml") and not base_path.is_absolute():
             base_path = path.parent / base_path  # a relative file is relative to this one
         else:
-            base_path = plant_path(base_name)
+            try:
+                base_path = plant_path(base_name)
+            except ConfigError as error:
+                raise error.within(f"{path}: extends") from None
         if base_path.resolve() in seen:
             raise ConfigError([f"{path}: extends: circular ({base_name})"])
         base = _load(base_path, seen + (path.resolve(),))

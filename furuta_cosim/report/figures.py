@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from furuta_cosim.cosim.trace import Trace  # noqa: E402
+from furuta_cosim.files import atomic  # noqa: E402
 
 LABELS = {"theta0": "arm angle θ0 [rad]", "theta1": "pendulum angle θ1 [rad]",
           "dtheta0": "arm velocity [rad/s]", "dtheta1": "pendulum velocity [rad/s]",
@@ -45,12 +46,8 @@ def plot_runs(traces: Mapping[str, Trace], path: str | Path, title: str = "",
     try:
         for suffix in (".png", ".svg"):
             target = path.with_suffix(suffix)
-            partial = target.with_name(f".{target.name}.partial")
-            try:
+            with atomic(target) as partial:
                 figure.savefig(partial, dpi=120, format=suffix[1:])
-                partial.replace(target)
-            finally:
-                partial.unlink(missing_ok=True)
             written.append(target)
     finally:
         plt.close(figure)
