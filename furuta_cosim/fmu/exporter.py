@@ -13,6 +13,7 @@ import importlib.util
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import uuid
 import zipfile
@@ -23,7 +24,7 @@ import fmpy
 
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
-from furuta_cosim.files import copy
+from furuta_cosim.files import atomic, copy
 from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 
@@ -216,29 +217,76 @@ def model_period(model: Model) -> float:
 
 
 def _compiler() -> str:
-    compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    chosen = os.environ.get("CC")
+    if chosen:
+        found = shutil.which(chosen)
+        if not found:
+            raise FmuError(f"CC={chosen}: no such compiler (unset CC to use gcc)")
+        return found
+    compiler = shutil.which("gcc") or shutil.which("cc")
     if not compiler:
         raise FmuError("no C compiler found: install gcc (Debian: apt-get install gcc) or set CC")
     return compiler
 
 
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _seal(target: Path) -> None:
+    """Record the content hash of a new cache entry beside it (``<entry>.sha256``)."""
+    with atomic(target.with_name(target.name + ".sha256")) as partial:
+        partial.write_text(_digest(target) + "\n")
+
+
+def _intact(target: Path, log) -> bool:
+    """True when ``target`` is in the cache and matches the hash recorded at build time; a
+    damaged entry (truncated, overwritten) is removed, saying so in one line."""
+    if not target.is_file():
+        return False
+    seal = target.with_name(target.name + ".sha256")
+    try:
+        if seal.read_text().strip() == _digest(target):
+            return True
+    except (OSError, UnicodeDecodeError):
+        pass
+    (log or _stderr)(f"the cached {target.name} is damaged or unverified: building it again")
+    for damaged in (target, seal):
+        try:
+            damaged.unlink(missing_ok=True)
+        except OSError:
+            pass
+    return False
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+def _unwritable(error: OSError) -> FmuError:
+    return FmuError(f"cannot write the FMU cache {paths.cache()} ({error.strerror or error}): "
+                    "set FURUTA_COSIM_CACHE to a writable folder")
+
+
 def build_helper(source: Path) -> Path | None:
-    """Compile a small C helper of the package into the cache; None without a compiler."""
+    """Compile a small C helper of the package into the cache; None when that cannot be done
+    (no compiler, a cache that cannot be written): callers then do without it."""
+    text = source.read_bytes()
+    key = hashlib.sha256(text + " ".join(CFLAGS).encode()).hexdigest()[:16]
+    target = paths.cache() / f"{source.stem}-{key}.so"
+    if _intact(target, None):
+        return target
     try:
         compiler = _compiler()
-    except FmuError:
-        return None
-    text = source.read_bytes()
-    key = hashlib.sha256(text + " ".join((compiler, *CFLAGS)).encode()).hexdigest()[:16]
-    target = paths.cache() / f"{source.stem}-{key}.so"
-    if not target.is_file():
         target.parent.mkdir(parents=True, exist_ok=True)
-        partial = target.with_suffix(f".{os.getpid()}.partial")
-        result = subprocess.run([compiler, *CFLAGS, str(source), "-o", str(partial)],
-                                capture_output=True, text=True)
-        if result.returncode != 0:
-            raise FmuError(f"compiling {source.name} failed:\n{result.stderr.strip()}")
-        os.replace(partial, target)
+        with atomic(target) as partial:
+            result = subprocess.run([compiler, *CFLAGS, str(source), "-o", str(partial)],
+                                    capture_output=True, text=True)
+            if result.returncode != 0:
+                return None
+        _seal(target)
+    except (FmuError, OSError):
+        return None
     return target
 
 
@@ -259,10 +307,10 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
         plant = load_plant(plant)
     memo = repr((plant.model, sorted(plant.parameters.items()), plant.linear,
                  _source_stamps(plant.model), paths.cache()))
-    target = _BUILT.get(memo)
-    if target is None or not target.is_file():
+    target, stamp = _BUILT.get(memo, (None, None))
+    if target is None or _stamp(target) != stamp:
         target = _build_cached(plant, log)
-        _BUILT[memo] = target
+        _BUILT[memo] = target, _stamp(target)
     if output is not None:
         output = Path(output)
         if output.is_dir() or output.suffix != ".fmu":
@@ -271,8 +319,17 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
     return target
 
 
-# in-process memo: a scenario prepared a thousand times hashes its FMU once
-_BUILT: dict[str, Path] = {}
+# in-process memo: a scenario prepared a thousand times hashes its FMU once, and again only
+# when the file changed on disk
+_BUILT: dict[str, tuple[Path, tuple]] = {}
+
+
+def _stamp(path: Path) -> tuple | None:
+    try:
+        status = path.stat()
+    except OSError:
+        return None
+    return status.st_mtime_ns, status.st_size, status.st_ino
 
 
 def _source_stamps(model: str) -> tuple:
@@ -281,27 +338,32 @@ def _source_stamps(model: str) -> tuple:
 
 
 def _build_cached(plant: PlantSet, log) -> Path:
-    """The FMU of ``plant`` in the cache, built there if it is not."""
+    """The FMU of ``plant`` in the cache, built there if it is not (or is damaged). The key
+    does not depend on which compiler is installed, so a warm cache needs none."""
     model = declaration(plant)
     model_dir = paths.fmu_sources() / plant.model
     common = paths.fmu_sources() / "common"
     files = {name: (common / name).read_text() for name in GLUE_SOURCES}
     files["model.c"] = (model_dir / "model.c").read_text()
-    compiler = _compiler()
     digest = hashlib.sha256()
     for name in sorted(files):
         digest.update(name.encode() + b"\0" + files[name].encode() + b"\0")
     digest.update(generate_header(model, "").encode())
     digest.update(generate_model_description(model, "", sorted(files)).encode())
-    digest.update(" ".join((compiler, *CFLAGS)).encode())
+    digest.update(" ".join(CFLAGS).encode())
     key = digest.hexdigest()
     guid = "{" + str(uuid.UUID(key[:32])) + "}"
     target = paths.cache() / f"{model.identifier}-{key[:16]}.fmu"
-    if not target.is_file():
+    if not _intact(target, log):
+        compiler = _compiler()
         if log:
             log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
         files["model_vars.h"] = generate_header(model, guid)
-        _build(model, files, guid, compiler, target)
+        try:
+            _build(model, files, guid, compiler, target)
+            _seal(target)
+        except OSError as error:
+            raise _unwritable(error) from None
         _accepts_its_defaults(plant, target)
     return target
 
@@ -329,16 +391,18 @@ def _build(model: Model, files: dict, guid: str, compiler: str, target: Path) ->
         binary = work / f"{model.identifier}.so"
         command = [compiler, *CFLAGS, f"-I{work}", f"-I{fmi_headers()}",
                    *(str(work / n) for n in sources if n.endswith(".c")), "-o", str(binary), "-lm"]
-        result = subprocess.run(command, capture_output=True, text=True)
+        try:
+            result = subprocess.run(command, capture_output=True, text=True)
+        except OSError as error:
+            raise FmuError(f"cannot run the C compiler {compiler}: {error.strerror}") from None
         if result.returncode != 0:
             raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}")
         description = generate_model_description(model, guid, sources)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        partial = target.with_suffix(f".{os.getpid()}.partial")
-        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr("modelDescription.xml", description)
-            archive.write(binary, f"binaries/{PLATFORM}/{model.identifier}.so")
-            for name in sources:
-                archive.writestr(f"sources/{name}", files[name])
-        os.replace(partial, target)  # atomic: a concurrent build never sees half an FMU
+        # atomic: a concurrent build or a crash never leaves half an FMU under its name
+        with atomic(target) as partial:
+            with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
+                archive.writestr("modelDescription.xml", description)
+                archive.write(binary, f"binaries/{PLATFORM}/{model.identifier}.so")
+                for name in sources:
+                    archive.writestr(f"sources/{name}", files[name])
 

@@ -83,7 +83,10 @@ def _step_helper():
     global _HELPER
     if _HELPER is None:
         path = build_helper(Path(__file__).parent / "_c" / "step_io.c")
-        _HELPER = _FFI.dlopen(str(path)) if path else False
+        try:
+            _HELPER = _FFI.dlopen(str(path)) if path else False
+        except OSError:
+            _HELPER = False
     return _HELPER or None
 
 
@@ -140,7 +143,11 @@ class FmuBinary:
             shutil.rmtree(self.directory, ignore_errors=True)
             raise FmuError(f"{self.path}: no binary for {fmpy.platform} "
                            f"(rebuild it from sources/ with 'fmpy compile')")
-        self.lib = _FFI.dlopen(str(library))
+        try:
+            self.lib = _FFI.dlopen(str(library))
+        except OSError as error:
+            shutil.rmtree(self.directory, ignore_errors=True)
+            raise FmuError(f"{self.path}: its binary cannot be loaded ({error})") from None
         self.variables = {v.name: v for v in md.modelVariables}
         self.states = state_names(md)
 
