@@ -29,8 +29,10 @@ from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 
 GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
+# FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
+# the cache key, so such builds never mix with ordinary ones
 CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror",
-          "-fvisibility=hidden")
+          "-fvisibility=hidden") + tuple(os.environ.get("FURUTA_COSIM_EXTRA_CFLAGS", "").split())
 PLATFORM = "linux64"
 _KINDS = {"parameter": "KIND_PARAMETER", "input": "KIND_INPUT", "output": "KIND_OUTPUT",
           "local": "KIND_LOCAL"}
