@@ -39,7 +39,7 @@ def cmd_linearize(args) -> int:
     result = linearize(fmu, parameters=dict(plant.parameters),
                        inputs={name: 0.0 for name in args.inputs} if args.inputs else None)
     if args.json:
-        print(json.dumps(result.as_dict()))
+        print(json.dumps(result.as_dict(), allow_nan=False))
         return 0
     import numpy as np
 
@@ -402,6 +402,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except FmuError as error:
         print(f"error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as error:
+        # a full disk, a folder that went away: one line; the atomic writers left nothing
+        where = f"{error.filename}: " if error.filename else ""
+        print(f"error: {where}{error.strerror or error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except _Terminated:
         print("terminated: no file was left half-written", file=sys.stderr)

@@ -219,3 +219,32 @@ def test_an_interrupted_run_leaves_no_half_written_file(tmp_path, sig):
     assert "no file was left half-written" in err and "Traceback" not in err
     assert list(out.iterdir()) == []        # nothing under a final name, no .partial
     assert list(temporary.iterdir()) == []  # the extracted FMU was removed
+
+
+def test_a_full_disk_while_writing_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    import errno
+    from contextlib import contextmanager
+
+    from furuta_cosim.cosim import trace
+
+    real = trace.atomic
+
+    @contextmanager
+    def disk_fills_up(path):
+        with real(path) as partial:
+            yield partial
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(trace, "atomic", disk_fills_up)
+    code, _, err = run_cli(capsys, "simulate", "paper-step", "-o", str(tmp_path / "out"))
+    assert code == 2 and err.endswith(f"error: {tmp_path / 'out' / 'lqr-paper.csv'}: No space left on device\n")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_analyze_exits_by_every_verdict_it_prints(tmp_path, capsys):
+    controller = tmp_path / "fast.yaml"
+    data = yaml.safe_load((SHIPPED / "controllers" / "lqr-paper.yaml").read_text())
+    data.update(time="continuous", period=1.0e-300)
+    controller.write_text(yaml.safe_dump(data))
+    code, out, _ = run_cli(capsys, "analyze", str(controller))
+    assert "the loop is UNSTABLE" in out and code == 1

@@ -126,5 +126,7 @@ def _differences(evaluate, x0, u0, states, input_names, output_names, relative, 
         columns_g.append((g_plus - g_minus) / (2 * delta))
     jf = np.array(columns_f).T.reshape(nx, len(z0))
     jg = np.array(columns_g).T.reshape(len(output_names), len(z0))
+    if not (np.all(np.isfinite(jf)) and np.all(np.isfinite(jg))):
+        raise FmuError("the linearization is not finite at this operating point and these parameters")
     return Linearization(jf[:, :nx], jf[:, nx:], jg[:, :nx], jg[:, nx:], list(states),
                          list(input_names), list(output_names), period)
