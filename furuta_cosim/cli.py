@@ -290,6 +290,39 @@ def _print_table(scenario, results, document) -> None:
         print(f"SKIP  {note}")
 
 
+def cmd_tune(args) -> int:
+    import time
+    from pathlib import Path
+
+    from furuta_cosim.tuning.run import tune
+    from furuta_cosim.tuning.spec import load_spec
+
+    spec = load_spec(args.spec)
+    out = Path(args.output or Path("runs") / spec.name)
+    started = time.monotonic()
+    last = [0.0]
+
+    def progress(done, total, best, feasible):
+        now = time.monotonic()
+        if now - last[0] >= (0.5 if sys.stderr.isatty() else 5.0) or done == total:
+            last[0] = now
+            rate = done / max(now - started, 1e-9)
+            shown = "none yet" if best is None else format(best, ".6g")
+            end = "\r" if sys.stderr.isatty() and done < total else "\n"
+            print(f"  {done}/{total} evaluations, best {shown}, feasible {feasible / done:.0%}, "
+                  f"{rate:.1f}/s", end=end, file=sys.stderr, flush=True)
+
+    print(f"tuning {spec.name} into {out}", file=sys.stderr)
+    document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
+                    progress=progress)
+    if args.json:
+        print(json.dumps(document))
+    else:
+        print((out / "summary.md").read_text(), end="")
+        print(f"run directory: {out}")
+    return 0 if document["best"] else EXIT_FAILED
+
+
 def cmd_list(args) -> int:
     from furuta_cosim.shipped import listing
 
@@ -369,6 +402,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-trace", action="store_true", help="write no CSV traces")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(handler=cmd_simulate)
+
+    p = commands.add_parser("tune", help="tune a controller by Bayesian optimization over a spec")
+    p.add_argument("spec", help="tuning spec file or name in scenarios/tuning (paper-spectral, ...)")
+    p.add_argument("-o", "--output", help="run directory (default runs/<spec>); must not hold a run")
+    p.add_argument("--optimizer", choices=("bo", "random"), help="default: the spec's")
+    p.add_argument("--n-calls", type=int, help="evaluations (default: the spec's)")
+    p.add_argument("--seed", type=int, help="default: the spec's")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(handler=cmd_tune)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

@@ -39,4 +39,6 @@ def listing() -> dict[str, dict[str, str]]:
         "controllers": {n: str(d.get("description", ""))
                         for n, d in _descriptions(paths.scenarios() / "controllers").items()},
         "scenarios": {n: str(d.get("description", "")) for n, d in _descriptions(paths.scenarios()).items()},
+        "tuning": {n: str(d.get("description", ""))
+                   for n, d in _descriptions(paths.scenarios() / "tuning").items()},
     }

@@ -1,0 +1,186 @@
+"""The objective of a tuning and its constraints, for one candidate controller.
+
+Cheap checks come first: the loop's stability with a margin on the design model (the
+augmented matrix Abar, and the sampled loop at the control period) and, when asked, the
+controller's own stability cost microseconds, so an unstable candidate never reaches a
+co-simulation.
+
+An infeasible candidate scores ``penalty + violation``: a constant above any feasible score
+plus how far it is from feasibility (how far its slowest mode is right of the margin, how far
+a peak is over its bound, ...), so the Gaussian process still learns which way is better.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from furuta_cosim.design.controller import GeneralizedController, augmented, discretize_controller
+from furuta_cosim.errors import ConfigError, DesignError, FmuError
+from furuta_cosim.tuning.spec import TuningSpec
+from furuta_cosim.tuning.space import Space
+
+
+@dataclass
+class Outcome:
+    """What one evaluation found: the score the optimizer is told and why."""
+
+    objective: float
+    feasible: bool
+    constraints: dict = field(default_factory=dict)
+    metrics: dict = field(default_factory=dict)     # "<scenario>[<variant>]" -> {metric: value}
+    error: str | None = None
+    wall_time: float = 0.0
+
+
+def _peak(signal: str) -> str:
+    """The metric of a signal's largest magnitude (the input's is ``u.peak_abs``)."""
+    return "u.peak_abs" if signal == "u" else f"{signal}.max_abs"
+
+
+def spectral_abscissa(Abar: np.ndarray, period: float) -> np.ndarray:
+    """Eigenvalues of Abar read as continuous-time modes s (ln(z)/T for a discrete loop)."""
+    eigenvalues = np.linalg.eigvals(Abar)
+    if period > 0:
+        with np.errstate(divide="ignore"):
+            return np.log(eigenvalues.astype(complex)) / period
+    return eigenvalues
+
+
+class Evaluator:
+    """Scores candidates of one spec; holds its prepared scenarios and plant sessions, so a
+    worker builds it once and evaluates candidate after candidate."""
+
+    def __init__(self, spec: TuningSpec):
+        from furuta_cosim.models import load_model
+
+        self.spec = spec
+        self.model = load_model(spec.model)
+        self.space = Space(spec.blocks, self.model, spec.period, spec.discrete)
+        self._runs = None  # [(label, prepared, session)], prepared on first use
+
+    # -- the cheap checks ------------------------------------------------------------------
+    def loop_checks(self, controller: GeneralizedController) -> tuple[dict, float]:
+        """Constraint values on the design model and the total violation (0 when feasible)."""
+        margin = self.spec.constraints.stability_margin
+        values, violation = {}, 0.0
+        modes = spectral_abscissa(augmented(self.model, controller)[0], controller.period)
+        values["abscissa"] = float(np.max(modes.real))
+        violation += max(0.0, values["abscissa"] + margin)
+        if not controller.discrete and self.spec.period > 0 and not self.model.discrete:
+            sampled = discretize_controller(controller, self.spec.period)
+            sampled_modes = spectral_abscissa(augmented(self.model, sampled)[0], self.spec.period)
+            values["sampled_abscissa"] = float(np.max(sampled_modes.real))
+            violation += max(0.0, values["sampled_abscissa"] + margin)
+        if self.spec.constraints.controller_stable and controller.n_xc:
+            ac = spectral_abscissa(controller.Ac, controller.period)
+            values["controller_abscissa"] = float(np.max(ac.real))
+            violation += max(0.0, values["controller_abscissa"])
+        return values, violation
+
+    # -- one candidate ---------------------------------------------------------------------
+    def __call__(self, x) -> Outcome:
+        started = time.perf_counter()
+        outcome = self._score(x)
+        outcome.wall_time = time.perf_counter() - started
+        return outcome
+
+    def _score(self, x) -> Outcome:
+        try:
+            controller = self.space.controller(x)
+        except (DesignError, np.linalg.LinAlgError, ValueError) as error:
+            return Outcome(self.spec.constraints.penalty * 2, False, {}, {},
+                           f"no controller at this point: {error}")
+        return self.score(controller)
+
+    def score(self, controller: GeneralizedController) -> Outcome:
+        """The objective and constraints of any controller (a candidate, or a baseline)."""
+        started = time.perf_counter()
+        outcome = self._score_controller(controller)
+        outcome.wall_time = time.perf_counter() - started
+        return outcome
+
+    def _score_controller(self, controller: GeneralizedController) -> Outcome:
+        penalty = self.spec.constraints.penalty
+        try:
+            constraints, violation = self.loop_checks(controller)
+        except (DesignError, np.linalg.LinAlgError, ValueError) as error:
+            return Outcome(penalty * 2, False, {}, {}, f"the loop cannot be analysed: {error}")
+        if not math.isfinite(violation):
+            return Outcome(penalty * 2, False, constraints, {}, "the loop's modes are not finite")
+        if violation > 0:
+            return Outcome(penalty + min(violation, penalty), False, constraints)
+        if self.spec.objective.type == "spectral":
+            # the paper's objective as stated: the largest |Re| of the loop's modes
+            modes = spectral_abscissa(augmented(self.model, controller)[0], controller.period)
+            return Outcome(float(np.max(np.abs(modes.real))), True, constraints)
+        return self._scenarios(controller, constraints)
+
+    def _scenarios(self, controller: GeneralizedController, constraints: dict) -> Outcome:
+        from furuta_cosim.controllers import ControllerFile
+        from furuta_cosim.cosim import compile_controller, evaluate
+        from furuta_cosim.design.prefilter import prefilter
+
+        spec, penalty = self.spec, self.spec.constraints.penalty
+        scores, metrics, violation = [], {}, 0.0
+        for label, prepared, session in self.runs():
+            try:
+                F = prefilter(self.model, controller, prepared.tracked)
+            except DesignError as error:
+                return Outcome(penalty * 2, False, constraints, metrics, f"{label}: no prefilter: {error}")
+            cfile = ControllerFile(controller, spec.period, spec.model, prepared.tracked, F)
+            try:
+                result = evaluate(prepared, session, compile_controller(prepared, cfile))
+            except (ConfigError, FmuError) as error:
+                return Outcome(penalty * 2, False, constraints, metrics, f"{label}: {error}")
+            metrics[label] = {k: (v if math.isfinite(v) else None) for k, v in result.metrics.items()}
+            if result.failure:
+                violation += 1.0
+                constraints[f"{label}.diverged"] = True
+                continue
+            for signal, bound in spec.constraints.max_abs:
+                value = result.metrics.get(_peak(signal), math.inf)
+                constraints[f"{label}.{signal}.max_abs"] = value
+                violation += max(0.0, value / bound - 1.0)
+            if spec.constraints.requirements and not result.passed:
+                failed = [k for k, v in result.requirements.items() if not v["pass"]]
+                constraints[f"{label}.requirements"] = failed
+                violation += 0.1 * len(failed)
+            score = sum(term.weight * result.metrics.get(term.metric, math.inf)
+                        for term in spec.objective.terms)
+            scores.append(score)
+        if violation > 0 or not all(math.isfinite(s) for s in scores):
+            return Outcome(penalty + min(violation, penalty), False, constraints, metrics)
+        total = max(scores) if spec.objective.aggregate == "worst" else float(np.mean(scores))
+        return Outcome(float(total), True, constraints, metrics)
+
+    def runs(self):
+        """Every scenario on every plant variant, prepared once, each with its open session."""
+        if self._runs is None:
+            from furuta_cosim.cosim import prepare
+            from furuta_cosim.cosim.worker import session_for
+            from furuta_cosim.scenario import load_scenario
+
+            folder = self.spec.path.parent if self.spec.path else None
+            runs = []
+            for name in self.spec.objective.scenarios:
+                path = folder / name if folder and name.endswith((".yaml", ".yml")) else name
+                scenario = load_scenario(path)
+                for k, overrides in enumerate(self.spec.variants):
+                    try:
+                        prepared = prepare(scenario, overrides=dict(overrides))
+                    except ConfigError as error:
+                        raise error.within(f"{self.spec.source}: variants[{k}]") from None
+                    for signal, _ in self.spec.constraints.max_abs:
+                        name, metric = _peak(signal).split(".")
+                        if metric not in prepared.metrics.get(name, ()):
+                            raise ConfigError([f"{self.spec.source}: constraints.max_abs.{signal}: "
+                                               f"scenario {scenario.name} records no {signal} "
+                                               f"(signals: {', '.join(prepared.metrics)})"])
+                    label = scenario.name + (f"[{k}]" if len(self.spec.variants) > 1 else "")
+                    runs.append((label, prepared, session_for(prepared)))
+            self._runs = runs
+        return self._runs

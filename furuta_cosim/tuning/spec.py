@@ -1,0 +1,295 @@
+"""Tuning specs (``scenarios/tuning/*.yaml``): YAML -> frozen dataclasses, validated as
+strictly as scenarios (every problem at once, with file and key; unknown keys rejected).
+
+    name: paper-spectral
+    controller: {n_xc: 1, time: continuous, period: 0.002, model: paper-printed}
+    parameters:
+      Ac: {log: [-1, 2], sign: -1}       # Ac = -10^a
+      Bc: {box: [-1, 1]}
+      Cc: {box: [-1, 1]}
+      Dc: {lqr: [-2, 3], R: 10}          # Dc = lqr(A, B, diag(10^q), R)
+    objective: {type: spectral}
+    constraints: {stability_margin: 0.01}
+    optimizer: {method: bo, n_calls: 150, n_initial_points: 10, xi: 0.01, seed: 0}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from furuta_cosim import paths
+from furuta_cosim.config import Checker, load_yaml, resolve_file
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.tuning.space import KINDS, Block
+
+METHODS = ("bo", "random")
+OBJECTIVES = ("spectral", "scenarios")
+AGGREGATES = ("worst", "mean")
+
+
+@dataclass(frozen=True)
+class Term:
+    metric: str
+    weight: float
+
+
+@dataclass(frozen=True)
+class Objective:
+    type: str
+    scenarios: tuple[str, ...] = ()
+    terms: tuple[Term, ...] = ()
+    aggregate: str = "worst"
+
+
+@dataclass(frozen=True)
+class Constraints:
+    stability_margin: float = 0.0      # on Abar (and the sampled loop): abscissa <= -margin
+    controller_stable: bool = False    # eig(Ac) stable
+    max_abs: tuple[tuple[str, float], ...] = ()   # signal -> bound in co-simulation
+    requirements: bool = True          # the scenarios' own requirements
+    penalty: float = 1.0e3             # objective of an infeasible candidate (plus its violation)
+
+
+@dataclass(frozen=True)
+class OptimizerSettings:
+    method: str = "bo"
+    n_calls: int = 150
+    n_initial_points: int = 10
+    xi: float = 0.01
+    seed: int = 0
+    batch: int = 1
+
+
+@dataclass(frozen=True)
+class TuningSpec:
+    name: str
+    description: str
+    path: Path | None
+    n_xc: int
+    discrete: bool
+    period: float
+    model: str
+    blocks: tuple[Block, ...]
+    objective: Objective
+    constraints: Constraints
+    optimizer: OptimizerSettings
+    variants: tuple[tuple[tuple[str, float], ...], ...] = ((),)
+    baselines: tuple[str, ...] = ()    # controllers scored alike, for the summary
+
+    @property
+    def source(self) -> str:
+        return str(self.path) if self.path else self.name
+
+
+def spec_path(name: str | Path) -> Path:
+    return resolve_file(name, paths.scenarios() / "tuning", "tuning spec")
+
+
+def load_spec(name: str | Path) -> TuningSpec:
+    """Read and validate a tuning spec; the model named is loaded to size the matrices."""
+    from furuta_cosim.models import load_model
+
+    path = spec_path(name)
+    check = Checker(path)
+    top = check.mapping(load_yaml(path), "", required=("controller", "parameters", "objective"),
+                        optional=("name", "description", "constraints", "optimizer", "variants",
+                                  "baselines"))
+    if top is None:
+        check.done()
+    controller = check.mapping(top.get("controller", {}), "controller", required=("n_xc", "model"),
+                               optional=("time", "period")) or {}
+    n_xc = check.number(controller.get("n_xc"), "controller.n_xc", integer=True, minimum=0) \
+        if "n_xc" in controller else None
+    time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
+    period = check.number(controller.get("period", 0.002), "controller.period", positive=True)
+    model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
+    check.done()
+    try:
+        model = load_model(model_name)
+    except ConfigError as error:
+        raise error.within(f"{path}: controller.model") from None
+    n_x, n_u = model.n, model.B.shape[1]
+    shapes = {"Ac": (n_xc, n_xc), "Bc": (n_xc, n_x), "Cc": (n_u, n_xc), "Dc": (n_u, n_x)}
+    parameters = check.mapping(top.get("parameters"), "parameters", optional=tuple(shapes)) or {}
+    # a matrix the spec leaves out is zero (Dc excepted: the plant needs feedback)
+    blocks = tuple(_block(check, parameters[key], key, shape) if key in parameters
+                   else (Block(key, "fixed", shape) if key != "Dc" else _block(check, None, key, shape))
+                   for key, shape in shapes.items())
+    objective = _objective(check, top.get("objective"))
+    constraints = _constraints(check, top.get("constraints", {}))
+    optimizer = _optimizer(check, top.get("optimizer", {}))
+    variants = _variants(check, top.get("variants", [{}]))
+    baselines = tuple(check.names(top["baselines"], "baselines") or ()) if "baselines" in top else ()
+    name = check.file_name(top["name"], "name") if "name" in top else path.stem
+    description = check.text(top["description"], "description") if "description" in top else ""
+    if optimizer and optimizer.batch > optimizer.n_calls:
+        check.fail("optimizer.batch", f"larger than the budget optimizer.n_calls ({optimizer.n_calls})")
+    if optimizer and optimizer.method == "bo" and optimizer.n_initial_points > optimizer.n_calls:
+        check.fail("optimizer.n_initial_points", f"larger than optimizer.n_calls ({optimizer.n_calls})")
+    if all(b is not None and b.kind == "fixed" for b in blocks):
+        check.fail("parameters", "every matrix is fixed: nothing to tune")
+    check.done()
+    return TuningSpec(name, description, path, n_xc, time == "discrete", period, model_name, blocks,
+                      objective, constraints, optimizer, variants, baselines)
+
+
+def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | None:
+    where = f"parameters.{key}"
+    if value is None:
+        check.fail(where, "missing (Dc has no default: give fixed, box, log or lqr)")
+        return None
+    if not isinstance(value, dict) or not set(value) & set(KINDS):
+        check.fail(where, f"expected a mapping with one of {', '.join(KINDS)}")
+        return None
+    kinds = [k for k in KINDS if k in value]
+    if len(kinds) > 1 and not (set(kinds) == {"fixed", "box"} or set(kinds) == {"fixed", "log"}):
+        check.fail(where, f"one of {', '.join(KINDS)} (fixed only beside box or log, for the "
+                          f"entries that are not free), got {', '.join(kinds)}")
+        return None
+    kind = next(k for k in ("lqr", "box", "log", "fixed") if k in value)
+    optional = {"fixed": ("fixed",), "box": ("box", "fixed", "entries"),
+                "log": ("log", "sign", "fixed", "entries"), "lqr": ("lqr", "R")}[kind]
+    section = check.mapping(value, where, optional=optional)
+    if section is None:
+        return None
+    rows, cols = shape
+    if rows * cols == 0:
+        check.fail(where, f"{key} is empty with n_xc = 0: leave it out")
+        return None
+    fixed = ()
+    if "fixed" in section:
+        matrix = check.matrix(section["fixed"], f"{where}.fixed", rows=rows, cols=cols)
+        fixed = tuple(v for row in (matrix or []) for v in row)
+    if kind == "fixed":
+        return Block(key, "fixed", shape, fixed=fixed)
+    if kind == "lqr" and key != "Dc":
+        check.fail(where, "lqr makes Dc only")
+        return None
+    bounds = check.vector(section[kind], f"{where}.{kind}", 2)
+    if bounds is None:
+        return None
+    low, high = bounds
+    if not low < high:
+        check.fail(f"{where}.{kind}", f"expected [low, high] with low < high, got {bounds}")
+        return None
+    sign, R, entries = 1.0, 1.0, None
+    if kind == "log":
+        sign = check.number(section.get("sign", 1), f"{where}.sign") or 1.0
+        if sign not in (-1.0, 1.0):
+            check.fail(f"{where}.sign", f"expected 1 or -1, got {sign:g}")
+    if kind == "lqr":
+        R = check.number(section.get("R", 1.0), f"{where}.R", positive=True) or 1.0
+    if "entries" in section:
+        entries = _entries(check, section["entries"], f"{where}.entries", shape)
+    return Block(key, kind, shape, low, high, sign, R, entries, fixed)
+
+
+def _entries(check: Checker, value, key: str, shape) -> tuple | None:
+    pairs = check.matrix(value, key, cols=2) if isinstance(value, list) and value else None
+    if pairs is None:
+        check.fail(key, "expected a list of [row, column] pairs")
+        return None
+    result = []
+    for i, j in pairs:
+        if not (i == int(i) and j == int(j) and 0 <= i < shape[0] and 0 <= j < shape[1]):
+            check.fail(key, f"[{i:g}, {j:g}] is not an entry of a {shape[0]}x{shape[1]} matrix")
+            return None
+        result.append((int(i), int(j)))
+    if len(set(result)) != len(result):
+        check.fail(key, "an entry is named twice")
+        return None
+    return tuple(result)
+
+
+def _objective(check: Checker, value) -> Objective | None:
+    section = check.mapping(value, "objective", required=("type",),
+                            optional=("scenarios", "terms", "aggregate"))
+    if not section or "type" not in section:
+        return None
+    kind = check.string(section["type"], "objective.type", OBJECTIVES)
+    if kind == "spectral":
+        for key in ("scenarios", "terms"):
+            if key in section:
+                check.fail(f"objective.{key}", "the spectral objective uses no scenarios")
+        return Objective("spectral")
+    if kind is None:
+        return None
+    scenarios = check.names(section.get("scenarios"), "objective.scenarios") if "scenarios" in section else None
+    if not scenarios:
+        check.fail("objective.scenarios", "expected at least one scenario name or file")
+    terms = []
+    raw = section.get("terms")
+    if not isinstance(raw, list) or not raw:
+        check.fail("objective.terms", "expected a list of {metric, weight}")
+    else:
+        from furuta_cosim.metrics import problem
+
+        for k, item in enumerate(raw):
+            term = check.mapping(item, f"objective.terms[{k}]", required=("metric",), optional=("weight",))
+            if not term or "metric" not in term:
+                continue
+            metric = check.string(term["metric"], f"objective.terms[{k}].metric")
+            wrong = problem(metric) if metric else None
+            if wrong:
+                check.fail(f"objective.terms[{k}].metric", wrong)
+            weight = check.number(term.get("weight", 1.0), f"objective.terms[{k}].weight", minimum=0.0)
+            if metric and not wrong and weight is not None:
+                terms.append(Term(metric, weight))
+    aggregate = check.string(section.get("aggregate", "worst"), "objective.aggregate", AGGREGATES)
+    folder = check.source and Path(check.source).parent
+    for k, name in enumerate(scenarios or []):
+        try:
+            from furuta_cosim.scenario import scenario_path
+
+            found = (folder / name) if name.endswith((".yaml", ".yml")) and folder else scenario_path(name)
+            if not Path(found).is_file():
+                raise ConfigError([f"{name}: no such scenario file"])
+        except ConfigError as error:
+            check.fail(f"objective.scenarios[{k}]", str(error))
+    return Objective("scenarios", tuple(scenarios or ()), tuple(terms), aggregate or "worst")
+
+
+def _constraints(check: Checker, value) -> Constraints:
+    section = check.mapping(value, "constraints", optional=("stability_margin", "controller_stable",
+                                                            "max_abs", "requirements", "penalty"))
+    if section is None:
+        return Constraints()
+    margin = check.number(section.get("stability_margin", 0.0), "constraints.stability_margin", minimum=0.0)
+    flags = {}
+    for key in ("controller_stable", "requirements"):
+        if key in section and not isinstance(section[key], bool):
+            check.fail(f"constraints.{key}", f"expected true or false, got {section[key]!r}")
+        flags[key] = bool(section.get(key, key == "requirements"))
+    bounds = check.numbers(section.get("max_abs", {}), "constraints.max_abs", positive=True)
+    penalty = check.number(section.get("penalty", 1.0e3), "constraints.penalty", positive=True)
+    return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
+                       flags["requirements"], penalty or 1.0e3)
+
+
+def _optimizer(check: Checker, value) -> OptimizerSettings | None:
+    section = check.mapping(value, "optimizer", optional=("method", "n_calls", "n_initial_points",
+                                                          "xi", "seed", "batch"))
+    if section is None:
+        return None
+    method = check.string(section.get("method", "bo"), "optimizer.method", METHODS)
+    n_calls = check.number(section.get("n_calls", 150), "optimizer.n_calls", integer=True, minimum=1)
+    initial = check.number(section.get("n_initial_points", 10), "optimizer.n_initial_points",
+                           integer=True, minimum=1)
+    xi = check.number(section.get("xi", 0.01), "optimizer.xi", minimum=0.0)
+    seed = check.number(section.get("seed", 0), "optimizer.seed", integer=True, minimum=0)
+    batch = check.number(section.get("batch", 1), "optimizer.batch", integer=True, minimum=1)
+    if None in (method, n_calls, initial, xi, seed, batch):
+        return None
+    return OptimizerSettings(method, n_calls, initial, xi, seed, batch)
+
+
+def _variants(check: Checker, value) -> tuple:
+    if not isinstance(value, list) or not value:
+        check.fail("variants", "expected a list of parameter overrides ({} is the plant as it is)")
+        return ((),)
+    result = []
+    for k, item in enumerate(value):
+        overrides = check.numbers(item, f"variants[{k}]")
+        result.append(tuple(overrides.items()))
+    return tuple(result)

@@ -1,0 +1,157 @@
+"""Tuning: specs validated strictly, the paper's spectral setup, the run directory, seeds."""
+
+import json
+
+import pytest
+import yaml
+
+from furuta_cosim import paths
+from furuta_cosim.tuning.run import tune
+from furuta_cosim.tuning.spec import load_spec
+
+from conftest import run_cli
+
+SPEC = paths.scenarios() / "tuning" / "paper-spectral.yaml"
+
+
+def history(folder):
+    return [json.loads(line) for line in (folder / "history.jsonl").read_text().splitlines()]
+
+
+def test_paper_spectral_finds_a_stable_controller(tmp_path, capsys):
+    code, out, err = run_cli(capsys, "tune", "paper-spectral", "--n-calls", "15", "-o",
+                             str(tmp_path / "run"), "--json")
+    assert code == 0, err
+    document = json.loads(out)
+    assert document["best"] and document["n_calls"] == 15
+    assert {"lqr-paper", "bo-paper"} <= set(document["baselines"])
+    records = history(tmp_path / "run")
+    assert [r["index"] for r in records] == list(range(15))
+    assert set(records[0]) == {"index", "x", "parameters", "objective", "feasible", "constraints",
+                               "metrics", "wall_time", "worker", "error"}
+    best = min((r for r in records if r["feasible"]), key=lambda r: r["objective"])
+    assert best["objective"] == pytest.approx(document["best"]["objective"])
+    for name in ("spec.yaml", "best.yaml", "summary.json", "summary.md", "convergence.png",
+                 "convergence.svg"):
+        assert (tmp_path / "run" / name).stat().st_size > 0
+    # best.yaml is a controller file that analyze accepts as it is, and it is stable
+    code, out, _ = run_cli(capsys, "analyze", str(tmp_path / "run" / "best.yaml"), "--model", "paper-printed")
+    assert code == 0 and "The closed loop is stable" in out
+    assert "fastest mode, not the slowest" in (tmp_path / "run" / "summary.md").read_text()
+
+
+def test_the_same_seed_gives_the_same_history(tmp_path):
+    spec = load_spec("paper-spectral")
+    for name in ("a", "b"):
+        tune(spec, tmp_path / name, n_calls=12, seed=3)
+    strip = lambda records: [{k: v for k, v in r.items() if k not in ("wall_time", "worker")}  # noqa: E731
+                             for r in records]
+    assert strip(history(tmp_path / "a")) == strip(history(tmp_path / "b"))
+    tune(spec, tmp_path / "c", n_calls=12, seed=4)
+    assert strip(history(tmp_path / "c")) != strip(history(tmp_path / "a"))
+
+
+def test_random_search_writes_the_same_history_format(tmp_path):
+    document = tune(load_spec("paper-spectral"), tmp_path / "r", method="random", n_calls=8)
+    assert document["method"] == "random" and len(history(tmp_path / "r")) == 8
+
+
+def test_a_run_directory_is_never_overwritten(tmp_path, capsys):
+    tune(load_spec("paper-spectral"), tmp_path / "run", n_calls=3)
+    code, _, err = run_cli(capsys, "tune", "paper-spectral", "-o", str(tmp_path / "run"))
+    assert code == 2 and "holds a tuning run already" in err
+
+
+def edit(data, keys, value):
+    target = data
+    for key in keys[:-1]:
+        target = target[key]
+    if value is None:
+        target.pop(keys[-1])
+    else:
+        target[keys[-1]] = value
+    return data
+
+
+@pytest.mark.parametrize("keys, value, key", [
+    (("parameters", "Bc"), {"box": [1, -1]}, "parameters.Bc.box"),
+    (("parameters", "Zc"), {"box": [0, 1]}, "parameters.Zc"),
+    (("parameters", "Ac"), {"log": [-1]}, "parameters.Ac.log"),
+    (("parameters", "Ac"), {"log": [-1, 2], "sign": 2}, "parameters.Ac.sign"),
+    (("parameters", "Bc"), {"lqr": [-1, 2]}, "parameters.Bc"),
+    (("parameters", "Dc"), None, "parameters.Dc"),
+    (("parameters", "Cc"), {"box": [-1, 1], "entries": [[3, 0]]}, "parameters.Cc.entries"),
+    (("parameters", "Dc"), {"lqr": [-2, 3], "R": 0}, "parameters.Dc.R"),
+    (("parameters", "Cc"), {"fixed": [[1.0, 2.0]]}, "parameters.Cc.fixed"),
+    (("controller", "n_xc"), -1, "controller.n_xc"),
+    (("controller", "model"), "segway", "controller.model"),
+    (("controller", "time"), "later", "controller.time"),
+    (("controller", "period"), 0, "controller.period"),
+    (("objective", "type"), "fastest", "objective.type"),
+    (("objective",), {"type": "scenarios", "scenarios": ["no-such-scenario"],
+                      "terms": [{"metric": "error.ISE"}]}, "objective.scenarios[0]"),
+    (("objective",), {"type": "scenarios", "scenarios": ["paper-step"],
+                      "terms": [{"metric": "error.Wobble"}]}, "objective.terms[0].metric"),
+    (("objective",), {"type": "scenarios", "scenarios": ["paper-step"]}, "objective.terms"),
+    (("optimizer", "batch"), 500, "optimizer.batch"),
+    (("optimizer", "n_initial_points"), 500, "optimizer.n_initial_points"),
+    (("optimizer", "method"), "annealing", "optimizer.method"),
+    (("optimizer", "n_calls"), 0, "optimizer.n_calls"),
+    (("constraints", "stability_margin"), -1, "constraints.stability_margin"),
+    (("constraints", "controller_stable"), "yes", "constraints.controller_stable"),
+    (("variants",), [{"C1": "x"}], "variants[0].C1"),
+    (("baselines",), "lqr-paper", "baselines"),
+    (("extra",), 1, "extra"),
+])
+def test_bad_specs_are_one_line(tmp_path, capsys, keys, value, key):
+    data = edit(yaml.safe_load(SPEC.read_text()), keys, value)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    code, _, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, lines
+    assert lines[0].startswith(f"error: {path}: {key}"), lines[0]
+    assert not (tmp_path / "run").exists()
+
+
+SCENARIOS_SPEC = """\
+name: effort-small
+controller: {n_xc: 1, time: continuous, period: 0.002, model: paper-printed}
+parameters:
+  Ac: {log: [-1, 2], sign: -1}
+  Bc: {box: [-1, 1]}
+  Cc: {fixed: [[1.0]]}
+  Dc: {lqr: [-2, 3], R: 10}
+objective:
+  type: scenarios
+  scenarios: [paper-step]
+  terms: [{metric: error.ISE, weight: 1.0}, {metric: u.rms, weight: 0.1}]
+constraints: {stability_margin: 0.01, max_abs: {theta1: 0.5, u: 50}, requirements: false}
+optimizer: {n_calls: 6, n_initial_points: 3}
+variants: [{}, {C1: 1.0e-4}]
+baselines: [lqr-paper]
+"""
+
+
+def test_a_scenarios_objective_over_plant_variants(tmp_path):
+    path = tmp_path / "effort.yaml"
+    path.write_text(SCENARIOS_SPEC)
+    document = tune(load_spec(path), tmp_path / "run")
+    records = history(tmp_path / "run")
+    feasible = [r for r in records if r["feasible"]]
+    assert feasible, [r["constraints"] for r in records]
+    for record in feasible:
+        # every candidate ran on both plant variants, and its score is the worst of them
+        assert set(record["metrics"]) == {"paper-step[0]", "paper-step[1]"}
+        scores = [m["error.ISE"] + 0.1 * m["u.rms"] for m in record["metrics"].values()]
+        assert record["objective"] == pytest.approx(max(scores), rel=1e-12)
+        assert all(record["constraints"][f"paper-step[{k}].theta1.max_abs"] <= 0.5 for k in (0, 1))
+    assert document["baselines"]["lqr-paper"]["feasible"]
+
+
+def test_a_bound_on_a_signal_no_scenario_records_is_one_line(tmp_path, capsys):
+    path = tmp_path / "effort.yaml"
+    path.write_text(SCENARIOS_SPEC.replace("theta1: 0.5", "zeta: 0.5"))
+    code, _, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"))
+    assert code == 2 and f"{path}: constraints.max_abs.zeta: scenario paper-step records no zeta" in err
+    assert not (tmp_path / "run").exists()
