@@ -291,6 +291,7 @@ def _print_table(scenario, results, document) -> None:
 
 
 def cmd_tune(args) -> int:
+    import os
     import time
     from pathlib import Path
 
@@ -312,9 +313,12 @@ def cmd_tune(args) -> int:
             print(f"  {done}/{total} evaluations, best {shown}, feasible {feasible / done:.0%}, "
                   f"{rate:.1f}/s", end=end, file=sys.stderr, flush=True)
 
-    print(f"tuning {spec.name} into {out}", file=sys.stderr)
+    workers = args.workers or (os.cpu_count() or 1)
+    where = f"on Dask ({args.dask})" if args.dask else (f"{workers} worker processes" if workers > 1
+                                                        else "in this process")
+    print(f"tuning {spec.name} into {out}, {where}", file=sys.stderr)
     document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
-                    progress=progress)
+                    workers=workers, dask=args.dask, resume=args.resume, progress=progress)
     if args.json:
         print(json.dumps(document))
     else:
@@ -406,7 +410,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("tune", help="tune a controller by Bayesian optimization over a spec")
     p.add_argument("spec", help="tuning spec file or name in scenarios/tuning (paper-spectral, ...)")
     p.add_argument("-o", "--output", help="run directory (default runs/<spec>); must not hold a run")
-    p.add_argument("--optimizer", choices=("bo", "random"), help="default: the spec's")
+    p.add_argument("--optimizer", choices=("bo", "random", "de"),
+                   help="bo (GP + EI), random, or de (scipy's differential evolution); default: the spec's")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; "
+                                               "1 evaluates in this process)")
+    p.add_argument("--dask", metavar="ADDRESS", help="evaluate on a Dask scheduler, or 'local' for a LocalCluster")
+    p.add_argument("--resume", action="store_true", help="continue the run in -o after a crash")
     p.add_argument("--n-calls", type=int, help="evaluations (default: the spec's)")
     p.add_argument("--seed", type=int, help="default: the spec's")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

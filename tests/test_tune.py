@@ -155,3 +155,87 @@ def test_a_bound_on_a_signal_no_scenario_records_is_one_line(tmp_path, capsys):
     code, _, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"))
     assert code == 2 and f"{path}: constraints.max_abs.zeta: scenario paper-step records no zeta" in err
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_to_exactly_n_calls(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "furuta_cosim.cli", "tune", "paper-spectral", "--n-calls", "40",
+               "--workers", "1", "-o", str(run)]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if (run / "history.jsonl").exists() and len((run / "history.jsonl").read_text().splitlines()) >= 15:
+            break
+        time.sleep(0.01)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    done = len(history(run))
+    assert 15 <= done < 40, "the run was not killed in the middle"
+    result = subprocess.run(command + ["--resume"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    records = history(run)
+    assert [r["index"] for r in records] == list(range(40))          # none lost, none twice
+    assert len({tuple(r["x"]) for r in records}) == 40
+    assert json.loads((run / "summary.json").read_text())["evaluations"] == 40
+
+
+def test_a_worker_that_raises_or_dies_fails_only_its_evaluation(tmp_path, monkeypatch):
+    import os
+
+    from furuta_cosim.tuning import objective
+
+    real = objective.Evaluator.__call__
+
+    def faulty(self, x):
+        if x[1] > 0.6:        # Bc[0][0]: a candidate whose evaluation raises
+            raise ValueError("injected fault")
+        if x[1] < -0.7:       # and one whose worker process dies
+            os._exit(3)
+        return real(self, x)
+
+    monkeypatch.setattr(objective.Evaluator, "__call__", faulty)  # the forked workers inherit it
+    document = tune(load_spec("paper-spectral"), tmp_path / "run", method="random", n_calls=16,
+                    workers=2)
+    records = history(tmp_path / "run")
+    assert [r["index"] for r in records] == list(range(16))
+    raised = [r for r in records if r["error"] and "injected fault" in r["error"]]
+    died = [r for r in records if r["error"] == "the worker process died during this evaluation"]
+    assert raised and died, [r["x"][1] for r in records]
+    assert all(r["x"][1] > 0.6 for r in raised) and all(r["x"][1] < -0.7 for r in died)
+    healthy = [r for r in records if -0.7 <= r["x"][1] <= 0.6]
+    assert all(r["error"] is None for r in healthy)
+    assert document["failed"] == len(raised) + len(died) and document["best"]
+
+
+@pytest.mark.slow
+def test_a_campaign_on_a_local_dask_cluster(tmp_path):
+    document = tune(load_spec("paper-spectral"), tmp_path / "run", method="random", n_calls=6,
+                    dask="local", workers=2)
+    records = history(tmp_path / "run")
+    assert [r["index"] for r in records] == list(range(6)) and document["evaluations"] == 6
+    import dataclasses
+
+    spec = load_spec("paper-spectral")
+    in_pairs = dataclasses.replace(spec, optimizer=dataclasses.replace(spec.optimizer, batch=2))
+    serial = tune(in_pairs, tmp_path / "serial", method="random", n_calls=6)
+    # the same asks (batches of two) give the same results wherever they are evaluated
+    assert [r["objective"] for r in records] == [r["objective"] for r in history(tmp_path / "serial")]
+    assert len({r["worker"] for r in records}) >= 1 and serial["best"] == document["best"]
+
+
+def test_differential_evolution_keeps_the_budget_and_the_history_format(tmp_path):
+    document = tune(load_spec("paper-spectral"), tmp_path / "de", method="de", n_calls=30)
+    records = history(tmp_path / "de")
+    assert [r["index"] for r in records] == list(range(30)) and document["method"] == "de"
+    assert set(records[0]) == set(history_keys())
+
+
+def history_keys():
+    return {"index", "x", "parameters", "objective", "feasible", "constraints", "metrics",
+            "wall_time", "worker", "error"}

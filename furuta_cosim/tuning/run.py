@@ -27,6 +27,8 @@ from furuta_cosim.files import atomic, output_folder, write_text
 from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import TuningSpec
 
+METHODS = ("bo", "random", "de")
+
 
 def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
     from skopt import Optimizer
@@ -48,8 +50,10 @@ class _Random:
 
         self._space, self._rng = Space(dimensions), np.random.RandomState(seed)
 
-    def ask(self):
-        return self._space.rvs(1, random_state=self._rng)[0]
+    def ask(self, n_points=None):
+        if n_points is None:
+            return self._space.rvs(1, random_state=self._rng)[0]
+        return self._space.rvs(n_points, random_state=self._rng)
 
     def tell(self, x, y) -> None:
         pass
@@ -82,79 +86,207 @@ def _append(handle, record: dict) -> None:
     os.fsync(handle.fileno())
 
 
+class _Spent(Exception):
+    """The budget is spent: ends scipy's differential evolution from inside."""
+
+
+class _History:
+    """history.jsonl: the records so far (after a crash, a torn last line is dropped), and
+    each new one appended and forced to disk before the run goes on."""
+
+    def __init__(self, path: Path, resume: bool):
+        self.path = path
+        self.records: list[dict] = []
+        if resume:
+            good = 0
+            with path.open("rb") as handle:
+                for line in handle:
+                    try:
+                        record = json.loads(line)
+                    except ValueError:
+                        break
+                    if not isinstance(record, dict) or record.get("index") != len(self.records):
+                        break
+                    self.records.append(record)
+                    good += len(line)
+            with path.open("r+b") as handle:
+                handle.truncate(good)
+        self._handle = path.open("a")
+
+    def append(self, record: dict) -> None:
+        _append(self._handle, record)
+        self.records.append(record)
+
+    def close(self) -> None:
+        self._handle.close()
+
+
+def _executor(spec, evaluator, workers: int, dask: str | None):
+    from furuta_cosim.tuning.executors import Dask, Processes, Serial
+
+    if dask:
+        return Dask(spec, dask, max(workers, 1))
+    if workers > 1:
+        return Processes(spec, workers)
+    return Serial(spec, evaluator)
+
+
 def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
-         n_calls: int | None = None, seed: int | None = None,
+         n_calls: int | None = None, seed: int | None = None, workers: int = 1,
+         dask: str | None = None, resume: bool = False,
          progress: Callable[[int, int, float | None, int], None] | None = None) -> dict:
     """Run the spec's optimization into ``run_dir`` and return the summary document.
 
-    ``progress(done, total, best, feasible)`` is called after every evaluation."""
+    ``workers`` > 1 evaluates in local processes, ``dask`` (a scheduler address or ``local``)
+    on a Dask cluster; candidates are asked in synchronous batches of ``max(batch, workers)``.
+    ``resume`` continues a run directory after a crash: the history is replayed into the
+    optimizer and the run goes on until it holds exactly ``n_calls`` evaluations.
+    ``progress(done, total, best, feasible)`` is called after every batch."""
+    from threadpoolctl import threadpool_limits
+
     method = method or spec.optimizer.method
     n_calls = n_calls or spec.optimizer.n_calls
     seed = spec.optimizer.seed if seed is None else seed
-    if method not in ("bo", "random"):
-        raise ConfigError([f"--optimizer: expected bo or random, got {method!r}"])
+    if method not in METHODS:
+        raise ConfigError([f"--optimizer: expected one of {', '.join(METHODS)}, got {method!r}"])
     if n_calls < 1:
         raise ConfigError([f"--n-calls: must be >= 1, got {n_calls}"])
+    if workers < 1:
+        raise ConfigError([f"--workers: must be >= 1, got {workers}"])
     folder = output_folder(run_dir)
-    if (folder / "history.jsonl").exists():
-        raise ConfigError([f"-o {folder}: holds a tuning run already; choose another folder"])
+    if resume and not (folder / "history.jsonl").is_file():
+        raise ConfigError([f"--resume: {folder} holds no tuning run (no history.jsonl)"])
+    if not resume and (folder / "history.jsonl").exists():
+        raise ConfigError([f"-o {folder}: holds a tuning run already; choose another folder "
+                           "or --resume it"])
     evaluator = Evaluator(spec)
     if spec.objective.type == "scenarios":
         evaluator.runs()  # every scenario and variant prepared (and checked) before any file
     folder.mkdir(parents=True, exist_ok=True)
-    if spec.path:
+    if spec.path and not resume:
         write_text(folder / "spec.yaml", Path(spec.path).read_text())
-    optimizer = _optimizer(spec, evaluator, method, seed)
+    history = _History(folder / "history.jsonl", resume)
+    if len(history.records) > n_calls:
+        history.close()
+        raise ConfigError([f"--resume: the run holds {len(history.records)} evaluations, more "
+                           f"than --n-calls {n_calls}"])
+    executor = _executor(spec, evaluator, workers, dask)
+    batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
+    clock = {"optimizer": 0.0, "evaluation": 0.0}
+    try:
+        # one BLAS thread for the optimizer too: the workers use the other cores
+        with threadpool_limits(1 if (workers > 1 or dask) else None):
+            if method == "de":
+                _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch,
+                                        clock, progress)
+            else:
+                _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock,
+                          progress)
+    finally:
+        executor.close()
+        history.close()
+    return _finish(spec, folder, evaluator, history.records, n_calls, method, seed, clock)
+
+
+def _report(progress, history: _History, n_calls: int) -> None:
+    if progress:
+        feasible = [r["objective"] for r in history.records if r["feasible"]]
+        progress(len(history.records), n_calls, min(feasible) if feasible else None, len(feasible))
+
+
+def _evaluate(executor, evaluator, history: _History, xs, clock) -> list[float]:
+    started = time.perf_counter()
+    outcomes = executor.map(xs)
+    clock["evaluation"] += time.perf_counter() - started
     names = evaluator.space.names
-    best: tuple[float, int, list] | None = None
-    feasible = 0
-    optimizer_time = evaluation_time = 0.0
-    with (folder / "history.jsonl").open("a") as history:
-        for index in range(n_calls):
-            started = time.perf_counter()
-            x = optimizer.ask()
-            asked = time.perf_counter()
-            outcome = evaluator(x)
-            evaluated = time.perf_counter()
-            optimizer.tell(x, outcome.objective)
-            optimizer_time += (asked - started) + (time.perf_counter() - evaluated)
-            evaluation_time += evaluated - asked
-            _append(history, _record(index, x, names, outcome))
-            if outcome.feasible:
-                feasible += 1
-                if best is None or outcome.objective < best[0]:
-                    best = (outcome.objective, index, list(x))
-            if progress:
-                progress(index + 1, n_calls, best[0] if best else None, feasible)
-    return _finish(spec, folder, evaluator, best, n_calls, feasible, method, seed,
-                   optimizer_time, evaluation_time)
+    for x, outcome in zip(xs, outcomes):
+        history.append(_record(len(history.records), x, names, outcome))
+    return [outcome.objective for outcome in outcomes]
 
 
-def _finish(spec, folder, evaluator, best, n_calls, feasible, method, seed, optimizer_time,
-            evaluation_time) -> dict:
+def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock, progress):
+    optimizer = _optimizer(spec, evaluator, method, seed)
+    if history.records:
+        if method == "random":
+            for _ in history.records:
+                optimizer.ask()  # the same draws again: the generator goes on where it was
+        else:
+            optimizer.tell([r["x"] for r in history.records], [r["objective"] for r in history.records])
+    while len(history.records) < n_calls:
+        count = min(batch, n_calls - len(history.records))
+        started = time.perf_counter()
+        xs = optimizer.ask(count) if count > 1 else [optimizer.ask()]
+        clock["optimizer"] += time.perf_counter() - started
+        ys = _evaluate(executor, evaluator, history, xs, clock)
+        started = time.perf_counter()
+        optimizer.tell(xs, ys) if count > 1 else optimizer.tell(xs[0], ys[0])
+        clock["optimizer"] += time.perf_counter() - started
+        _report(progress, history, n_calls)
+
+
+def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch, clock,
+                            progress):
+    """scipy's differential evolution on the same space and budget; a resumed run replays the
+    recorded evaluations (same seed, same proposals) and evaluates only what is new."""
+    from scipy.optimize import differential_evolution
+
+    replay = list(history.records)
+
+    def evaluate_all(function, points):
+        xs = [list(map(float, x)) for x in points]
+        ys = []
+        while xs and replay and np.allclose(xs[0], replay[0]["x"], rtol=0, atol=1e-12):
+            ys.append(replay.pop(0)["objective"])
+            xs.pop(0)
+        remaining = n_calls - len(history.records)
+        if xs and remaining <= 0:
+            raise _Spent()
+        ys += _evaluate(executor, evaluator, history, xs[:remaining], clock)
+        _report(progress, history, n_calls)
+        if len(xs) > remaining:
+            raise _Spent()
+        return ys
+
+    dimensions = len(evaluator.space.bounds)
+    started = time.perf_counter()
+    try:
+        differential_evolution(lambda x: 0.0, evaluator.space.bounds, seed=seed, maxiter=10**9,
+                               popsize=max(5, min(15, n_calls // (4 * dimensions) or 1)),
+                               polish=False, updating="deferred", workers=evaluate_all, tol=0,
+                               init="latinhypercube")
+    except _Spent:
+        pass
+    clock["optimizer"] += time.perf_counter() - started - clock["evaluation"]
+
+
+def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> dict:
     from furuta_cosim.controllers import ControllerFile, load_controller, save_controller
 
+    feasible = [r for r in records if r["feasible"]]
+    best = min(feasible, key=lambda r: (r["objective"], r["index"])) if feasible else None
     baselines = {}
     for name in spec.baselines:
         cfile = load_controller(name)
         outcome = evaluator.score(cfile.controller)
         baselines[cfile.name] = _json_safe({"objective": outcome.objective,
                                             "feasible": outcome.feasible,
-                                            "constraints": outcome.constraints})
+                                            "constraints": outcome.constraints,
+                                            "metrics": outcome.metrics})
+    failures = sum(1 for r in records if r["error"])
     document = {"spec": spec.name, "method": method, "seed": seed, "n_calls": n_calls,
-                "feasible": feasible, "objective": spec.objective.type,
-                "optimizer_seconds": optimizer_time, "evaluation_seconds": evaluation_time,
-                "best": None, "baselines": baselines}
+                "evaluations": len(records), "feasible": len(feasible), "failed": failures,
+                "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
+                "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines}
     if best is not None:
-        objective, index, x = best
-        controller = evaluator.space.controller(x, name=f"{spec.name}-best")
+        controller = evaluator.space.controller(best["x"], name=f"{spec.name}-best")
         provenance = {"method": f"furuta-cosim tune ({method})", "spec": spec.name, "seed": seed,
-                      "evaluation": index, "objective": objective}
+                      "evaluation": best["index"], "objective": best["objective"]}
         save_controller(ControllerFile(controller, spec.period, spec.model, None, None,
                                        f"best of tuning {spec.name} ({method}, seed {seed})",
                                        provenance=provenance), folder / "best.yaml")
-        document["best"] = {"index": index, "objective": objective,
-                            "parameters": dict(zip(evaluator.space.names, x)), "file": "best.yaml"}
+        document["best"] = {"index": best["index"], "objective": best["objective"],
+                            "parameters": best["parameters"], "metrics": best["metrics"],
+                            "file": "best.yaml"}
     _convergence(folder, folder / "history.jsonl")
     write_text(folder / "summary.json", json.dumps(_json_safe(document), indent=2, allow_nan=False) + "\n")
     write_text(folder / "summary.md", _markdown(spec, document))

@@ -23,7 +23,7 @@ from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.tuning.space import KINDS, Block
 
-METHODS = ("bo", "random")
+METHODS = ("bo", "random", "de")
 OBJECTIVES = ("spectral", "scenarios")
 AGGREGATES = ("worst", "mean")
 

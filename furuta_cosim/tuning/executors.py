@@ -1,0 +1,162 @@
+"""Where candidates are evaluated: in this process, in local worker processes, or on Dask.
+
+Every executor evaluates a batch synchronously and returns one outcome per candidate, in
+order. A worker keeps one :class:`~furuta_cosim.tuning.objective.Evaluator` per spec (its
+prepared scenarios and one FMU session per plant variant) for its whole life. A candidate
+whose evaluation raises, or whose worker dies, gets a failed outcome with the error; the run
+goes on (a dead local worker pool is started again).
+"""
+
+from __future__ import annotations
+
+import os
+import traceback
+
+from furuta_cosim.tuning.objective import Evaluator, Outcome
+from furuta_cosim.tuning.spec import TuningSpec
+
+_EVALUATORS: dict[str, Evaluator] = {}
+# one BLAS thread per worker: several threads on busy cores slow everything down
+SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def failed(spec: TuningSpec, error: str) -> Outcome:
+    return Outcome(spec.constraints.penalty * 2, False, {}, {}, error)
+
+
+def evaluate_in_worker(spec: TuningSpec, x) -> Outcome:
+    """The worker's side: this process's evaluator for the spec, built on first use."""
+    key = repr(spec)
+    evaluator = _EVALUATORS.get(key)
+    if evaluator is None:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+        evaluator = _EVALUATORS[key] = Evaluator(spec)
+    return evaluator(x)
+
+
+class Serial:
+    """In this process, one after the other."""
+
+    name = "serial"
+
+    def __init__(self, spec: TuningSpec, evaluator: Evaluator):
+        self.spec, self.evaluator = spec, evaluator
+
+    def map(self, xs) -> list[Outcome]:
+        outcomes = []
+        for x in xs:
+            try:
+                outcomes.append(self.evaluator(x))
+            except Exception as error:  # noqa: BLE001 (a candidate's fault is recorded, not fatal)
+                outcomes.append(failed(self.spec, _describe(error)))
+        return outcomes
+
+    def close(self) -> None:
+        pass
+
+
+class Processes:
+    """Local worker processes (default: one per core)."""
+
+    name = "processes"
+
+    def __init__(self, spec: TuningSpec, workers: int):
+        self.spec, self.workers = spec, workers
+        self._pool = None
+
+    def _start(self):
+        from concurrent.futures import ProcessPoolExecutor
+
+        saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
+        os.environ.update(SINGLE_THREAD)  # inherited by the workers
+        try:
+            self._pool = ProcessPoolExecutor(self.workers)
+        finally:
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+
+    def map(self, xs) -> list[Outcome]:
+        from concurrent.futures.process import BrokenProcessPool
+
+        if self._pool is None:
+            self._start()
+        futures = [self._pool.submit(evaluate_in_worker, self.spec, x) for x in xs]
+        outcomes, broken = [], []
+        for k, future in enumerate(futures):
+            try:
+                outcomes.append(future.result())
+            except BrokenProcessPool:
+                broken.append(k)
+                outcomes.append(None)
+            except Exception as error:  # noqa: BLE001
+                outcomes.append(failed(self.spec, _describe(error)))
+        if broken:
+            # which candidate killed its worker is unknown: each one that was in flight runs
+            # again alone, in a fresh pool, so only the culprit fails
+            self._restart()
+            for k in broken:
+                try:
+                    outcomes[k] = self._pool.submit(evaluate_in_worker, self.spec, xs[k]).result()
+                except BrokenProcessPool:
+                    outcomes[k] = failed(self.spec, "the worker process died during this evaluation")
+                    self._restart()
+                except Exception as error:  # noqa: BLE001
+                    outcomes[k] = failed(self.spec, _describe(error))
+        return outcomes
+
+    def _restart(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._start()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+
+class Dask:
+    """A Dask cluster: an existing scheduler's address, or ``local`` for a LocalCluster."""
+
+    name = "dask"
+
+    def __init__(self, spec: TuningSpec, address: str, workers: int):
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            from furuta_cosim.errors import ConfigError
+
+            raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
+        self.spec = spec
+        if address == "local":
+            self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, env=SINGLE_THREAD)
+            self._client = Client(self._cluster)
+        else:
+            self._cluster = None
+            self._client = Client(address, timeout="30s")
+
+    def map(self, xs) -> list[Outcome]:
+        futures = [self._client.submit(evaluate_in_worker, self.spec, list(x), pure=False) for x in xs]
+        outcomes = []
+        for future in futures:
+            try:
+                outcomes.append(future.result())
+            except Exception as error:  # noqa: BLE001 (KilledWorker included)
+                outcomes.append(failed(self.spec, _describe(error)))
+        return outcomes
+
+    def close(self) -> None:
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+
+def _describe(error: BaseException) -> str:
+    last = traceback.extract_tb(error.__traceback__)[-1:] if error.__traceback__ else []
+    where = f" ({last[0].filename}:{last[0].lineno})" if last else ""
+    return f"{type(error).__name__}: {error}{where}"
