@@ -301,24 +301,34 @@ def cmd_tune(args) -> int:
     spec = load_spec(args.spec)
     out = Path(args.output or Path("runs") / spec.name)
     started = time.monotonic()
-    last = [0.0]
+    bar, last = None, [0.0]
 
     def progress(done, total, best, feasible):
-        now = time.monotonic()
-        if now - last[0] >= (0.5 if sys.stderr.isatty() else 5.0) or done == total:
-            last[0] = now
-            rate = done / max(now - started, 1e-9)
-            shown = "none yet" if best is None else format(best, ".6g")
-            end = "\r" if sys.stderr.isatty() and done < total else "\n"
+        nonlocal bar
+        shown = "none yet" if best is None else format(best, ".6g")
+        rate = done / max(time.monotonic() - started, 1e-9)
+        if sys.stderr.isatty():
+            if bar is None:
+                from tqdm import tqdm
+
+                bar = tqdm(total=total, initial=0, unit="eval", file=sys.stderr, leave=True)
+            bar.set_postfix_str(f"best {shown}, feasible {feasible / done:.0%}")
+            bar.update(done - bar.n)
+        elif time.monotonic() - last[0] >= 5.0 or done == total:
+            last[0] = time.monotonic()
             print(f"  {done}/{total} evaluations, best {shown}, feasible {feasible / done:.0%}, "
-                  f"{rate:.1f}/s", end=end, file=sys.stderr, flush=True)
+                  f"{rate:.1f}/s", file=sys.stderr, flush=True)
 
     workers = args.workers or (os.cpu_count() or 1)
     where = f"on Dask ({args.dask})" if args.dask else (f"{workers} worker processes" if workers > 1
                                                         else "in this process")
     print(f"tuning {spec.name} into {out}, {where}", file=sys.stderr)
-    document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
-                    workers=workers, dask=args.dask, resume=args.resume, progress=progress)
+    try:
+        document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
+                        workers=workers, dask=args.dask, resume=args.resume, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
     if args.json:
         print(json.dumps(document))
     else:

@@ -239,3 +239,33 @@ def test_differential_evolution_keeps_the_budget_and_the_history_format(tmp_path
 def history_keys():
     return {"index", "x", "parameters", "objective", "feasible", "constraints", "metrics",
             "wall_time", "worker", "error"}
+
+
+@pytest.mark.slow
+def test_effort_says_plainly_whether_it_beat_the_lqr(tmp_path):
+    document = tune(load_spec("effort"), tmp_path / "run", n_calls=10, workers=2)
+    summary = (tmp_path / "run" / "summary.md").read_text()
+    lqr = document["baselines"]["lqr-paper"]
+    assert lqr["feasible"]  # the LQR meets its own tracking by construction
+    best = document["best"]
+    if best is None:
+        assert "No feasible controller was found." in summary
+        return
+    for label in ("paper-tracking", "sine", "noise"):
+        ise = best["metrics"][label]["error.ISE"] / lqr["metrics"][label]["error.ISE"]
+        assert ise <= 1.05 * (1 + 1e-12), (label, ise)  # tracking no worse than +5 %
+    if best["objective"] < lqr["objective"]:
+        assert "the tuned controller scores better" in summary
+    else:
+        missed = (best["objective"] / lqr["objective"] - 1) * 100
+        assert f"does NOT beat it (worse by {missed:.1f} %)" in summary
+
+
+@pytest.mark.slow
+def test_robust_effort_is_stable_on_every_plant_variant(tmp_path):
+    document = tune(load_spec("robust-effort"), tmp_path / "run", n_calls=8, workers=2)
+    assert document["best"], "no feasible controller in 8 calls"
+    metrics = document["best"]["metrics"]
+    assert set(metrics) == {f"{s}[{k}]" for s in ("paper-tracking", "sine", "noise") for k in (0, 1)}
+    for values in metrics.values():
+        assert values["theta1.max_abs"] <= 0.3  # bounded in co-simulation on both plants

@@ -61,6 +61,7 @@ class Evaluator:
         self.model = load_model(spec.model)
         self.space = Space(spec.blocks, self.model, spec.period, spec.discrete)
         self._runs = None  # [(label, prepared, session)], prepared on first use
+        self._baseline = None  # the no_worse_than baseline's metrics by run
 
     # -- the cheap checks ------------------------------------------------------------------
     def loop_checks(self, controller: GeneralizedController) -> tuple[dict, float]:
@@ -145,6 +146,12 @@ class Evaluator:
                 value = result.metrics.get(_peak(signal), math.inf)
                 constraints[f"{label}.{signal}.max_abs"] = value
                 violation += max(0.0, value / bound - 1.0)
+            for metric, factor in spec.constraints.no_worse_than:
+                reference = self.baseline_metrics()[label].get(metric, math.inf)
+                value = result.metrics.get(metric, math.inf)
+                ratio = value / reference if reference > 0 else (0.0 if value <= 0 else math.inf)
+                constraints[f"{label}.{metric}/{spec.constraints.baseline}"] = ratio
+                violation += max(0.0, ratio / factor - 1.0)
             if spec.constraints.requirements and not result.passed:
                 failed = [k for k, v in result.requirements.items() if not v["pass"]]
                 constraints[f"{label}.requirements"] = failed
@@ -156,6 +163,20 @@ class Evaluator:
             return Outcome(penalty + min(violation, penalty), False, constraints, metrics)
         total = max(scores) if spec.objective.aggregate == "worst" else float(np.mean(scores))
         return Outcome(float(total), True, constraints, metrics)
+
+    def baseline_metrics(self) -> dict:
+        """The metrics of the constraints' baseline controller on every run (computed once)."""
+        if self._baseline is None:
+            from furuta_cosim.cosim import compile_controller, evaluate
+
+            self._baseline = {}
+            for label, prepared, session in self.runs():
+                try:
+                    compiled = compile_controller(prepared, self.spec.constraints.baseline)
+                except ConfigError as error:
+                    raise error.within(f"{self.spec.source}: constraints.no_worse_than.controller") from None
+                self._baseline[label] = evaluate(prepared, session, compiled).metrics
+        return self._baseline
 
     def runs(self):
         """Every scenario on every plant variant, prepared once, each with its open session."""

@@ -49,6 +49,8 @@ class Constraints:
     max_abs: tuple[tuple[str, float], ...] = ()   # signal -> bound in co-simulation
     requirements: bool = True          # the scenarios' own requirements
     penalty: float = 1.0e3             # objective of an infeasible candidate (plus its violation)
+    baseline: str | None = None        # no_worse_than: this controller's metrics, per run,
+    no_worse_than: tuple[tuple[str, float], ...] = ()   # times these factors bound the candidate's
 
 
 @dataclass(frozen=True)
@@ -252,7 +254,8 @@ def _objective(check: Checker, value) -> Objective | None:
 
 def _constraints(check: Checker, value) -> Constraints:
     section = check.mapping(value, "constraints", optional=("stability_margin", "controller_stable",
-                                                            "max_abs", "requirements", "penalty"))
+                                                            "max_abs", "requirements", "penalty",
+                                                            "no_worse_than"))
     if section is None:
         return Constraints()
     margin = check.number(section.get("stability_margin", 0.0), "constraints.stability_margin", minimum=0.0)
@@ -263,8 +266,23 @@ def _constraints(check: Checker, value) -> Constraints:
         flags[key] = bool(section.get(key, key == "requirements"))
     bounds = check.numbers(section.get("max_abs", {}), "constraints.max_abs", positive=True)
     penalty = check.number(section.get("penalty", 1.0e3), "constraints.penalty", positive=True)
+    baseline, factors = None, ()
+    if "no_worse_than" in section:
+        relative = check.mapping(section["no_worse_than"], "constraints.no_worse_than",
+                                 required=("controller", "metrics")) or {}
+        if "controller" in relative:
+            baseline = check.string(relative["controller"], "constraints.no_worse_than.controller")
+        if "metrics" in relative:
+            from furuta_cosim.metrics import problem
+
+            ratios = check.numbers(relative["metrics"], "constraints.no_worse_than.metrics", positive=True)
+            for metric in ratios:
+                wrong = problem(metric)
+                if wrong:
+                    check.fail(f"constraints.no_worse_than.metrics.{metric}", wrong)
+            factors = tuple(ratios.items())
     return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
-                       flags["requirements"], penalty or 1.0e3)
+                       flags["requirements"], penalty or 1.0e3, baseline, factors)
 
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
