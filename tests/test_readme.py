@@ -53,9 +53,12 @@ def test_main_job_runs_from_a_clean_clone_in_a_new_venv(tmp_path):
                            env=env, cwd=tmp_path, capture_output=True, text=True, check=True)
     module, prefix = where.stdout.split()
     assert Path(module).is_relative_to(clone) and Path(prefix) == venv
-    report = json.loads((clone / "out" / "paper-step" / "metrics.json").read_text())
-    assert report["passed"] and set(report["controllers"]) == {"lqr-paper", "bo-paper"}
-    assert (clone / "out" / "paper-step" / "paper-step.png").stat().st_size > 10_000
+    run = clone / "runs" / "effort"
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["evaluations"] == 150 and summary["best"] and "lqr-paper" in summary["baselines"]
+    assert (run / "convergence.png").stat().st_size > 10_000
+    assert (run / "summary.md").read_text().startswith("# Tuning effort")
+    assert len((run / "history.jsonl").read_text().splitlines()) == 150
 
 
 @pytest.mark.parametrize("index", range(len(re.findall(r"```python\n", (ROOT / "README.md").read_text()))))
@@ -63,3 +66,15 @@ def test_readme_python_examples_run_as_written(index, tmp_path, monkeypatch):
     block = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)[index]
     monkeypatch.chdir(tmp_path)
     exec(compile(block, f"README.md python block {index}", "exec"), {"__name__": "readme"})  # noqa: S102
+
+
+def test_the_readme_every_key_tuning_spec_runs(tmp_path):
+    from furuta_cosim.tuning.run import tune
+    from furuta_cosim.tuning.spec import load_spec
+
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("Every key of a tuning spec"):]
+    path = tmp_path / "my-tuning.yaml"
+    path.write_text(re.search(r"```yaml\n(.*?)```", section, re.S).group(1))
+    document = tune(load_spec(path), tmp_path / "run", n_calls=2)
+    assert document["evaluations"] == 2 and document["baselines"]["lqr-paper"]["feasible"]

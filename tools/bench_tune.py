@@ -1,0 +1,111 @@
+"""What a tuning run costs and what each optimizer finds, measured in one run.
+
+    python tools/bench_tune.py [--seeds 5] [--calls 150] [--skip-default]
+
+- paper-spectral (12 parameters), serial: wall time split into optimizer and evaluation
+  time, optimizer seconds per iteration (median and last), for our GP configuration and for
+  scikit-optimize's defaults (gp_minimize's: GP with noise fitted, 2 restarts, lbfgs EI);
+- best objective over the seeds for bo, bo with skopt's defaults, random and de at the same
+  budget, and de with 2,000 evaluations;
+- effort (150 calls, 3 scenarios): wall time with 1 worker and with 2, and the speed-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from furuta_cosim.tuning import run as tuning
+from furuta_cosim.tuning.run import tune
+from furuta_cosim.tuning.spec import load_spec
+
+
+def skopt_defaults(spec, evaluator, method, seed):
+    """scikit-optimize's own GP set-up, for comparison."""
+    from skopt import Optimizer
+
+    return Optimizer(evaluator.space.dimensions(), base_estimator="GP", acq_func="EI",
+                     acq_func_kwargs={"xi": spec.optimizer.xi},
+                     n_initial_points=spec.optimizer.n_initial_points, random_state=seed)
+
+
+def timed_run(spec, folder, **options) -> tuple[dict, list[float], float]:
+    """A run, its summary, the optimizer's seconds per iteration, and its wall time."""
+    per_iteration = []
+    original = tuning._ask_tell
+
+    def measured(spec_, evaluator, executor, history, n_calls, seed, method, batch, clock, progress):
+        last = [clock["optimizer"]]
+
+        def report(*args):
+            per_iteration.append(clock["optimizer"] - last[0])
+            last[0] = clock["optimizer"]
+
+        return original(spec_, evaluator, executor, history, n_calls, seed, method, batch, clock, report)
+
+    tuning._ask_tell = measured
+    try:
+        started = time.perf_counter()
+        document = tune(spec, folder, **options)
+        return document, per_iteration, time.perf_counter() - started
+    finally:
+        tuning._ask_tell = original
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--calls", type=int, default=150)
+    parser.add_argument("--skip-default", action="store_true", help="leave out skopt's defaults (slow)")
+    args = parser.parse_args()
+    spectral = load_spec("paper-spectral")
+    work = Path(tempfile.mkdtemp(prefix="bench-tune-"))
+    rows, best = [], {}
+    methods = ["bo", "random", "de"] + ([] if args.skip_default else ["bo-skopt-defaults"])
+    for method in methods:
+        for seed in range(args.seeds):
+            folder = work / f"{method}-{seed}"
+            if method == "bo-skopt-defaults":
+                original = tuning._optimizer
+                tuning._optimizer = skopt_defaults
+                try:
+                    document, per, wall = timed_run(spectral, folder, method="bo", n_calls=args.calls, seed=seed)
+                finally:
+                    tuning._optimizer = original
+            else:
+                document, per, wall = timed_run(spectral, folder, method=method, n_calls=args.calls, seed=seed)
+            best.setdefault(method, []).append(document["best"]["objective"] if document["best"] else None)
+            if seed == 0:
+                rows.append((method, wall, document["optimizer_seconds"], document["evaluation_seconds"],
+                             statistics.median(per) if per else float("nan"), per[-1] if per else float("nan")))
+            print(f"  {method} seed {seed}: best {best[method][-1]}, {wall:.1f} s", file=sys.stderr, flush=True)
+    de_long, _, de_wall = timed_run(spectral, work / "de-2000", method="de", n_calls=2000, seed=0)
+
+    print(f"paper-spectral, {args.calls} calls, serial (seed 0)")
+    print(f"{'method':20s} {'wall s':>8s} {'optimizer s':>12s} {'evaluation s':>13s} {'s/iter median':>14s} {'s/iter last':>12s}")
+    for method, wall, optimizer_s, evaluation_s, median, last in rows:
+        print(f"{method:20s} {wall:8.1f} {optimizer_s:12.1f} {evaluation_s:13.2f} {median:14.3f} {last:12.3f}")
+    print(f"\nbest objective over seeds 0..{args.seeds - 1} (lower is better; the paper's objective)")
+    for method, values in best.items():
+        found = [v for v in values if v is not None]
+        print(f"{method:20s} " + " ".join(f"{v:9.3f}" if v is not None else "     none" for v in values)
+              + (f"   median {statistics.median(found):.3f}" if found else ""))
+    print(f"{'de, 2000 evaluations':20s} {de_long['best']['objective']:9.3f}   ({de_wall:.1f} s)")
+
+    effort = load_spec("effort")
+    _, _, one = timed_run(effort, work / "effort-1", n_calls=args.calls, workers=1)
+    two_doc, _, two = timed_run(effort, work / "effort-2", n_calls=args.calls, workers=2)
+    print(f"\neffort, {args.calls} calls: 1 worker {one:.1f} s, 2 workers {two:.1f} s "
+          f"(speed-up {one / two:.2f}x; optimizer {two_doc['optimizer_seconds']:.1f} s, "
+          f"evaluations {two_doc['evaluation_seconds']:.1f} s with 2 workers)")
+    print(json.dumps({"work": str(work)}), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
