@@ -40,10 +40,14 @@ def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
 
     dimensions = evaluator.space.dimensions()
     # scikit-optimize's GP with its default settings spends most of a run refitting kernel
-    # hyperparameters from three starts at every tell; one start, a fixed tiny noise (the
+    # hyperparameters from three starts at every tell; a fit from one start every fifth tell
+    # (warm: from the last kernel; conditioning only in between), a fixed tiny noise (the
     # objective is deterministic) and EI maximized over 2,000 sampled points cost a fraction
     # (tools/bench_tune.py measures both)
-    gp = cook_estimator("GP", space=dimensions, random_state=seed, noise=1e-10, n_restarts_optimizer=0)
+    from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
+
+    kernel = cook_estimator("GP", space=dimensions, random_state=seed).kernel
+    gp = WarmGaussianProcess(kernel, random_state=seed, noise=1e-10, refit_every=5, memory=Memory())
     return Optimizer(dimensions, base_estimator=gp, acq_func="EI",
                      acq_func_kwargs={"xi": settings.xi}, n_initial_points=settings.n_initial_points,
                      acq_optimizer="sampling", acq_optimizer_kwargs={"n_points": 2000},
