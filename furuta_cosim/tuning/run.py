@@ -42,7 +42,8 @@ def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
     # scikit-optimize's GP with its default settings spends most of a run refitting kernel
     # hyperparameters from three starts at every tell; a fit from one start every fifth tell
     # (warm: from the last kernel; conditioning only in between), a fixed tiny noise (the
-    # objective is deterministic) and EI maximized over 2,000 sampled points cost a fraction
+    # objective is deterministic) and EI maximized from 2,000 sampled points and 2 L-BFGS
+    # starts cost a fraction
     # (tools/bench_tune.py measures both)
     from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
 
@@ -50,7 +51,7 @@ def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
     gp = WarmGaussianProcess(kernel, random_state=seed, noise=1e-10, refit_every=5, memory=Memory())
     return Optimizer(dimensions, base_estimator=gp, acq_func="EI",
                      acq_func_kwargs={"xi": settings.xi}, n_initial_points=settings.n_initial_points,
-                     acq_optimizer="sampling", acq_optimizer_kwargs={"n_points": 2000},
+                     acq_optimizer="lbfgs", acq_optimizer_kwargs={"n_points": 2000, "n_restarts_optimizer": 2},
                      random_state=seed)
 
 
