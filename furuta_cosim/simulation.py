@@ -10,9 +10,9 @@ import json
 from pathlib import Path
 from typing import Callable, Sequence
 
-from furuta_cosim.cosim.evaluation import evaluate, scenario_controllers
+from furuta_cosim.cosim.evaluation import runs, scenario_controllers
 from furuta_cosim.cosim.master import prepare
-from furuta_cosim.errors import ConfigError, FmuError
+from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import output_folder, write_text
 from furuta_cosim.scenario import Scenario
 
@@ -63,7 +63,6 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     ``every`` thins the written traces (metrics always use every sample), ``traces=False``
     writes none.
     """
-    from furuta_cosim.fmu.session import PlantSession
     from furuta_cosim.report.figures import plot_runs
 
     if every < 1:
@@ -77,19 +76,13 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
         f"{', '.join(c.name for c in compiled)}")
     out.mkdir(parents=True, exist_ok=True)
     results, entries, written = {}, {}, []
-    with PlantSession.open(prepared.fmu) as session:
-        for c in compiled:
-            report = (lambda k, n, name=c.name: progress(name, k, n)) if progress else None
-            try:
-                result = evaluate(prepared, session, c, progress=report)
-            except FmuError as error:
-                raise FmuError(f"{prepared.source}: controller {c.name}: {error}") from None
-            entry = result.save(out, every=every, trace=traces)
-            if entry["trace"]:
-                written.append(Path(entry["trace"]).name)
-            results[c.name], entries[c.name] = result, entry
-            log(f"  {c.name}: done in {result.wall_time:.2f} s"
-                + (f" ({result.failure.split(':')[0]})" if result.failure else ""))
+    for result in runs(prepared, compiled, progress=progress):
+        entry = result.save(out, every=every, trace=traces)
+        if entry["trace"]:
+            written.append(Path(entry["trace"]).name)
+        results[result.controller], entries[result.controller] = result, entry
+        log(f"  {result.controller}: done in {result.wall_time:.2f} s"
+            + (f" ({result.failure.split(':')[0]})" if result.failure else ""))
     if prepared.steps > 100_000:
         log("drawing the figure")
     figures = plot_runs({n: r.trace for n, r in results.items()}, out / scenario.name,

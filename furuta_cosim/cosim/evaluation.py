@@ -123,8 +123,9 @@ def evaluate(prepared: Prepared, session, controller, *,
 
 def runs(prepared: Prepared, controllers: Sequence | None = None, *,
          progress: Callable[[str, int, int], None] | None = None) -> Iterator[RunResult]:
-    """Each controller (default: the scenario's) in turn on one FMU instance: a result as soon
-    as its run ends, so a caller can save it before the next run starts."""
+    """Each controller (default: the scenario's; names, files or compiled controllers) in turn
+    on one FMU instance: a result as soon as its run ends, so a caller can save it before the
+    next run starts."""
     from furuta_cosim.fmu.session import PlantSession
 
     compiled = scenario_controllers(prepared, controllers)
