@@ -17,7 +17,6 @@ import numpy as np
 
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
-from furuta_cosim.metrics import problem as metric_problem
 
 SIGNAL_KEYS = {
     "step": ({"time", "amplitude"}, {"initial"}),
@@ -159,8 +158,9 @@ class Scenario:
         return str(self.path) if self.path else self.name
 
 
-def scenario_path(name: str | Path) -> Path:
-    return resolve_file(name, paths.scenarios(), "scenario")
+def scenario_path(name: str | Path, beside: Path | None = None) -> Path:
+    """A scenario name of ``scenarios/``, or a file (relative: to ``beside`` when given)."""
+    return resolve_file(name, paths.scenarios(), "scenario", beside=beside)
 
 
 def load_scenario(name: str | Path) -> Scenario:
@@ -382,12 +382,7 @@ def _requirements(check: Checker, value) -> tuple[Requirement, ...]:
         section = check.mapping(item, key, required=("metric",), optional=METRIC_BOUNDS + ("controllers",))
         if not section or "metric" not in section:
             continue
-        metric = check.string(section["metric"], f"{key}.metric")
-        # the form and the name here; which signals exist is known once the plant is (prepare)
-        wrong = metric_problem(metric) if metric else None
-        if wrong:
-            check.fail(f"{key}.metric", wrong)
-            metric = None
+        metric = check.metric(section["metric"], f"{key}.metric")
         bounds = {b: check.number(section[b], f"{key}.{b}") for b in METRIC_BOUNDS if b in section}
         if not bounds:
             check.fail(key, "expected a bound: max and/or min")

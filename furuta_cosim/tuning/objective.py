@@ -185,10 +185,8 @@ class Evaluator:
             from furuta_cosim.cosim.worker import session_for
             from furuta_cosim.scenario import load_scenario
 
-            folder = self.spec.path.parent if self.spec.path else None
             runs = []
-            for name in self.spec.objective.scenarios:
-                path = folder / name if folder and name.endswith((".yaml", ".yml")) else name
+            for path in self.spec.objective.scenarios:
                 scenario = load_scenario(path)
                 for k, overrides in enumerate(self.spec.variants):
                     try:

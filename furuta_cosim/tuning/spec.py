@@ -21,6 +21,7 @@ from pathlib import Path
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.scenario import scenario_path
 from furuta_cosim.tuning.space import KINDS, Block
 
 METHODS = ("bo", "random", "de")
@@ -37,7 +38,7 @@ class Term:
 @dataclass(frozen=True)
 class Objective:
     type: str
-    scenarios: tuple[str, ...] = ()
+    scenarios: tuple[str, ...] = ()    # resolved scenario files
     terms: tuple[Term, ...] = ()
     aggregate: str = "worst"
 
@@ -225,31 +226,28 @@ def _objective(check: Checker, value) -> Objective | None:
     if not isinstance(raw, list) or not raw:
         check.fail("objective.terms", "expected a list of {metric, weight}")
     else:
-        from furuta_cosim.metrics import problem
-
         for k, item in enumerate(raw):
             term = check.mapping(item, f"objective.terms[{k}]", required=("metric",), optional=("weight",))
             if not term or "metric" not in term:
                 continue
-            metric = check.string(term["metric"], f"objective.terms[{k}].metric")
-            wrong = problem(metric) if metric else None
-            if wrong:
-                check.fail(f"objective.terms[{k}].metric", wrong)
+            metric = check.metric(term["metric"], f"objective.terms[{k}].metric")
             weight = check.number(term.get("weight", 1.0), f"objective.terms[{k}].weight", minimum=0.0)
-            if metric and not wrong and weight is not None:
+            if metric and weight is not None:
                 terms.append(Term(metric, weight))
     aggregate = check.string(section.get("aggregate", "worst"), "objective.aggregate", AGGREGATES)
-    folder = check.source and Path(check.source).parent
+    # resolved once, here: a file beside the spec, or a name in scenarios/
+    resolved = []
     for k, name in enumerate(scenarios or []):
         try:
-            from furuta_cosim.scenario import scenario_path
-
-            found = (folder / name) if name.endswith((".yaml", ".yml")) and folder else scenario_path(name)
-            if not Path(found).is_file():
-                raise ConfigError([f"{name}: no such scenario file"])
+            path = scenario_path(name, Path(check.source).parent)
         except ConfigError as error:
             check.fail(f"objective.scenarios[{k}]", str(error))
-    return Objective("scenarios", tuple(scenarios or ()), tuple(terms), aggregate or "worst")
+            continue
+        if not path.is_file():
+            check.fail(f"objective.scenarios[{k}]", f"{name}: no such scenario file")
+            continue
+        resolved.append(str(path))
+    return Objective("scenarios", tuple(resolved), tuple(terms), aggregate or "worst")
 
 
 def _constraints(check: Checker, value) -> Constraints:
@@ -273,14 +271,9 @@ def _constraints(check: Checker, value) -> Constraints:
         if "controller" in relative:
             baseline = check.string(relative["controller"], "constraints.no_worse_than.controller")
         if "metrics" in relative:
-            from furuta_cosim.metrics import problem
-
             ratios = check.numbers(relative["metrics"], "constraints.no_worse_than.metrics", positive=True)
-            for metric in ratios:
-                wrong = problem(metric)
-                if wrong:
-                    check.fail(f"constraints.no_worse_than.metrics.{metric}", wrong)
-            factors = tuple(ratios.items())
+            factors = tuple((metric, ratio) for metric, ratio in ratios.items()
+                            if check.metric(metric, f"constraints.no_worse_than.metrics.{metric}"))
     return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
                        flags["requirements"], penalty or 1.0e3, baseline, factors)
 
