@@ -197,16 +197,16 @@ def cmd_analyze(args) -> int:
 
 
 class _Progress:
-    """Progress of long runs on stderr: a live bar on a terminal, a line every few seconds
-    otherwise; nothing for runs that end within a second."""
+    """Progress on stderr: a live bar on a terminal, a line every few seconds otherwise;
+    nothing for work that ends within ``delay`` seconds. ``note`` adds text (best so far)."""
 
-    def __init__(self, delay: float = 1.0, every: float = 5.0):
+    def __init__(self, delay: float = 1.0, every: float = 5.0, unit: str = "step"):
         import time
 
-        self._clock, self._delay, self._every = time.monotonic, delay, every
+        self._clock, self._delay, self._every, self._unit = time.monotonic, delay, every, unit
         self._bar, self._name, self._started, self._last = None, None, 0.0, 0.0
 
-    def __call__(self, name: str, k: int, steps: int) -> None:
+    def __call__(self, name: str, k: int, steps: int, note: str = "") -> None:
         now = self._clock()
         if name != self._name:
             self.close()
@@ -217,12 +217,15 @@ class _Progress:
             if self._bar is None:
                 from tqdm import tqdm
 
-                self._bar = tqdm(total=steps, desc=f"  {name}", unit="step", unit_scale=True,
+                self._bar = tqdm(total=steps, desc=f"  {name}", unit=self._unit, unit_scale=True,
                                  leave=False, file=sys.stderr)
+            if note:
+                self._bar.set_postfix_str(note)
             self._bar.update(k - self._bar.n)
         elif now - self._last >= self._every or k == steps:
             self._last = now
-            print(f"  {name}: {k}/{steps} steps ({k / steps:.0%})", file=sys.stderr)
+            print(f"  {name}: {k}/{steps} {self._unit}s ({k / steps:.0%})" + (f", {note}" if note else ""),
+                  file=sys.stderr)
 
     def close(self) -> None:
         if self._bar is not None:
@@ -301,23 +304,12 @@ def cmd_tune(args) -> int:
     spec = load_spec(args.spec)
     out = Path(args.output or Path("runs") / spec.name)
     started = time.monotonic()
-    bar, last = None, [0.0]
+    bar = _Progress(delay=0.0, unit="evaluation")
 
     def progress(done, total, best, feasible):
-        nonlocal bar
-        shown = "none yet" if best is None else format(best, ".6g")
         rate = done / max(time.monotonic() - started, 1e-9)
-        if sys.stderr.isatty():
-            if bar is None:
-                from tqdm import tqdm
-
-                bar = tqdm(total=total, initial=0, unit="eval", file=sys.stderr, leave=True)
-            bar.set_postfix_str(f"best {shown}, feasible {feasible / done:.0%}")
-            bar.update(done - bar.n)
-        elif time.monotonic() - last[0] >= 5.0 or done == total:
-            last[0] = time.monotonic()
-            print(f"  {done}/{total} evaluations, best {shown}, feasible {feasible / done:.0%}, "
-                  f"{rate:.1f}/s", file=sys.stderr, flush=True)
+        shown = "none yet" if best is None else format(best, ".6g")
+        bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
     workers = args.workers or (os.cpu_count() or 1)
     where = f"on Dask ({args.dask})" if args.dask else (f"{workers} worker processes" if workers > 1
@@ -327,8 +319,7 @@ def cmd_tune(args) -> int:
         document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
                         workers=workers, dask=args.dask, resume=args.resume, progress=progress)
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     if args.json:
         print(json.dumps(document))
     else:
