@@ -269,3 +269,19 @@ def test_robust_effort_is_stable_on_every_plant_variant(tmp_path):
     assert set(metrics) == {f"{s}[{k}]" for s in ("paper-tracking", "sine", "noise") for k in (0, 1)}
     for values in metrics.values():
         assert values["theta1.max_abs"] <= 0.3  # bounded in co-simulation on both plants
+
+
+def test_resume_refuses_another_spec_method_or_seed(tmp_path, capsys):
+    tune(load_spec("paper-spectral"), tmp_path / "run", n_calls=3)
+    other = tmp_path / "other.yaml"
+    other.write_text(SPEC.read_text().replace("seed: 0", "seed: 0\n  batch: 1"))
+    for argv, expected in ((["paper-spectral", "--seed", "5"], "--seed 5 differs from the run's 0"),
+                           (["paper-spectral", "--optimizer", "random"], "--optimizer random differs"),
+                           ([str(other)], "the spec differs from the one")):
+        code, _, err = run_cli(capsys, "tune", *argv, "-o", str(tmp_path / "run"), "--resume",
+                               "--n-calls", "6", "--workers", "1")
+        assert code == 2 and expected in err, err
+    assert len(history(tmp_path / "run")) == 3  # nothing was added
+    code, _, err = run_cli(capsys, "tune", "paper-spectral", "-o", str(tmp_path / "run"), "--resume",
+                           "--n-calls", "6", "--workers", "1")
+    assert code == 0 and len(history(tmp_path / "run")) == 6

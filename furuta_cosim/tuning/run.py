@@ -2,6 +2,7 @@
 
     run-dir/
       spec.yaml        a copy of the spec
+      run.json         the method and seed it was started with (checked by --resume)
       history.jsonl    one line per evaluation, appended and flushed to disk (fsync) at once
       best.yaml        the best feasible controller, a controller file simulate/analyze accept
       convergence.png  (and .svg) best objective against evaluations
@@ -135,6 +136,23 @@ class _History:
         self._handle.close()
 
 
+def _same_run(folder: Path, identity: dict) -> None:
+    """A resumed run goes on with the spec, method and seed it started with, or not at all:
+    its history would otherwise mix two searches."""
+    try:
+        started = json.loads((folder / "run.json").read_text())
+        spec_text = (folder / "spec.yaml").read_text() if (folder / "spec.yaml").exists() else None
+    except (OSError, ValueError) as error:
+        raise ConfigError([f"--resume: {folder / 'run.json'} cannot be read ({error})"]) from None
+    if spec_text is not None and spec_text != identity["spec"]:
+        raise ConfigError([f"--resume: the spec differs from the one {folder} was started with "
+                           f"({folder / 'spec.yaml'})"])
+    for key, flag in (("method", "--optimizer"), ("seed", "--seed")):
+        if started.get(key) != identity[key]:
+            raise ConfigError([f"--resume: {flag} {identity[key]} differs from the run's "
+                               f"{started.get(key)} ({folder / 'run.json'})"])
+
+
 def _executor(spec, evaluator, workers: int, dask: str | None):
     from furuta_cosim.tuning.executors import Dask, Processes, Serial
 
@@ -178,9 +196,15 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         evaluator.runs()  # every scenario and variant prepared (and checked) before any file
         if spec.constraints.no_worse_than:
             evaluator.baseline_metrics()
+    identity = {"spec": Path(spec.path).read_text() if spec.path else spec.name,
+                "method": method, "seed": seed}
+    if resume:
+        _same_run(folder, identity)
     folder.mkdir(parents=True, exist_ok=True)
-    if spec.path and not resume:
-        write_text(folder / "spec.yaml", Path(spec.path).read_text())
+    if not resume:
+        if spec.path:
+            write_text(folder / "spec.yaml", identity["spec"])
+        write_text(folder / "run.json", json.dumps({"method": method, "seed": seed}) + "\n")
     history = _History(folder / "history.jsonl", resume)
     if len(history.records) > n_calls:
         history.close()
