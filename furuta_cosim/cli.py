@@ -328,6 +328,77 @@ def cmd_tune(args) -> int:
     return 0 if document["best"] else EXIT_FAILED
 
 
+def _overrides(items) -> dict:
+    """``--params``: a plant file's parameters, or NAME=VALUE items."""
+    from furuta_cosim.errors import ConfigError
+
+    found = {}
+    for item in items or []:
+        if "=" in item:
+            name, _, text = item.partition("=")
+            try:
+                value = float(text)
+            except ValueError:
+                raise ConfigError([f"--params {item}: expected NAME=NUMBER"]) from None
+            if not name or value != value or value in (float("inf"), float("-inf")):
+                raise ConfigError([f"--params {item}: expected NAME=NUMBER with a finite number"])
+            found[name] = value
+        else:
+            from furuta_cosim.fmu.plants import load_plant
+
+            plant = load_plant(item)
+            if plant.linear is not None:
+                raise ConfigError([f"--params {item}: a linear plant has no parameter set to apply"])
+            found.update(plant.parameters)
+    return found
+
+
+def cmd_regress(args) -> int:
+    import os
+
+    from furuta_cosim.files import output_file
+    from furuta_cosim.regression import regress, write_junit
+
+    if args.junit:
+        output_file(args.junit, "--junit")
+    workers = args.workers or (os.cpu_count() or 1)
+    bar = _Progress(delay=0.0, unit="run")
+    try:
+        report = regress(args.paths, update=args.update, fmu=args.fmu, mapping=args.mapping,
+                         overrides=_overrides(args.params), workers=workers,
+                         baselines=args.baselines,
+                         progress=lambda done, total: bar("regress", done, total, ""))
+    finally:
+        bar.close()
+    if args.junit:
+        write_junit(report, args.junit)
+    if args.json:
+        print(json.dumps(report.to_dict()))
+        return EXIT_FAILED if report.failed else 0
+    width = max([len(c.scenario) for c in report.cases] + [8])
+    cwidth = max([len(c.controller) for c in report.cases] + [10])
+    print(f"{'scenario':{width}s}  {'controller':{cwidth}s}  {'checked':>7s}  status")
+    for case in report.cases:
+        moved = f" ({len(case.differences)} moved)" if case.differences else ""
+        print(f"{case.scenario:{width}s}  {case.controller:{cwidth}s}  {case.checked:7d}  {case.status}{moved}")
+    for case in report.cases:
+        if case.failed:
+            for line in case.lines():
+                print(f"REGRESSION {line}")
+        elif report.update and case.differences:
+            for line in case.lines():
+                print(f"changed    {line}")
+        for note in case.notes:
+            print(f"note       {case.scenario} / {case.controller}: {note}")
+    counts = {}
+    for case in report.cases:
+        counts[case.status] = counts.get(case.status, 0) + 1
+    print(f"{len(report.cases)} run(s) in {report.wall_time:.1f} s: "
+          + ", ".join(f"{n} {status}" for status, n in counts.items())
+          + (f"; JUnit XML in {args.junit}" if args.junit else ""))
+    return EXIT_FAILED if report.failed else 0
+
+
 def cmd_list(args) -> int:
     from furuta_cosim.shipped import listing
 
@@ -421,6 +492,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="default: the spec's")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=cmd_tune)
+
+    p = commands.add_parser("regress", help="run scenarios and compare with their baselines")
+    p.add_argument("paths", nargs="*", help="scenario files, names or folders (default: every shipped scenario)")
+    p.add_argument("--update", action="store_true", help="write the baselines and say what changed")
+    p.add_argument("--junit", metavar="FILE", help="also write the results as JUnit XML")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--fmu", help="run on this plant FMU instead of the scenarios' plants")
+    p.add_argument("--mapping", metavar="FILE",
+                   help="plant mapping for --fmu (control_input, states, disturbances, initial)")
+    p.add_argument("--params", action="append", metavar="SET",
+                   help="plant parameters on top of the scenarios': a plant file, or NAME=VALUE (repeatable)")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
+    p.add_argument("--baselines", metavar="DIR",
+                   help="baseline folder (default: baselines/ beside each scenario file)")
+    p.set_defaults(handler=cmd_regress)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

@@ -9,7 +9,7 @@ inputs) and the controllers' fit to the plant are checked when the run is prepar
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
@@ -130,6 +130,25 @@ class PlantMapping:
 
 
 @dataclass(frozen=True)
+class Regression:
+    """How ``regress`` compares a run with its baseline: a metric passes when
+    ``|got - expected| <= atol + rtol * |expected|``; a trace passes when every sample lies in
+    a band around the baseline's (fmpy.util.validate_signal: ``dy`` of the signal's range
+    above and below, widened over ``dx`` baseline points on either side)."""
+
+    rtol: float = 1e-6
+    atol: float = 1e-9
+    metrics: Mapping[str, Mapping[str, float]] = field(default_factory=lambda: Frozen({}))
+    dy: float = 1e-3
+    dx: int = 3
+    points: int = 200           # baseline trace points (the run is downsampled to about this)
+
+    def tolerance(self, metric: str) -> tuple[float, float]:
+        own = self.metrics.get(metric, {})
+        return own.get("rtol", self.rtol), own.get("atol", self.atol)
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     description: str
@@ -152,6 +171,7 @@ class Scenario:
     plot: tuple[str, ...]
     fmu: Path | None = None             # an FMU to run instead of building plant.model
     mapping: PlantMapping | None = None
+    regression: Regression = field(default_factory=Regression)
 
     @property
     def source(self) -> str:
@@ -170,7 +190,8 @@ def load_scenario(name: str | Path) -> Scenario:
     check = Checker(path)
     top = check.mapping(data, "", required=("plant", "timing", "controllers"),
                         optional=("name", "description", "reference", "noise", "disturbances",
-                                  "actuator", "estimator", "requirements", "metrics", "plot"))
+                                  "actuator", "estimator", "requirements", "metrics", "plot",
+                                  "regression"))
     if top is None:
         check.done()
     plant, overrides, initial, control_input, fmu, mapping = (
@@ -199,13 +220,49 @@ def load_scenario(name: str | Path) -> Scenario:
     plot = ()
     if "plot" in top:
         plot = tuple(check.names(top["plot"], "plot") or ())
+    regression = _regression(check, top["regression"]) if "regression" in top else Regression()
     name = check.file_name(top["name"], "name") if "name" in top else path.stem
     description = check.text(top["description"], "description") if "description" in top else ""
     check.done()
     return Scenario(name, description, path,
                     plant, overrides, initial, control_input, *timing, reference, noise,
                     disturbances, limit, controllers, estimator, requirements, window, plot,
-                    fmu, mapping)
+                    fmu, mapping, regression)
+
+
+def _regression(check: Checker, value) -> Regression:
+    section = check.mapping(value, "regression", optional=("rtol", "atol", "metrics", "band", "points"))
+    if not section:
+        return Regression()
+    found = {}
+    for key in ("rtol", "atol"):
+        if key in section:
+            found[key] = check.number(section[key], f"regression.{key}", minimum=0.0)
+    metrics = {}
+    raw = section.get("metrics", {})
+    entries = check.mapping(raw, "regression.metrics", optional=tuple(raw) if isinstance(raw, dict) else ())
+    for metric, tolerance in (entries or {}).items():
+        key = f"regression.metrics.{metric}"
+        if check.metric(metric, key) is None:
+            continue
+        own = check.mapping(tolerance, key, optional=("rtol", "atol"))
+        if own:
+            metrics[str(metric)] = Frozen({k: check.number(v, f"{key}.{k}", minimum=0.0)
+                                           for k, v in own.items()})
+    found["metrics"] = Frozen(metrics)
+    if "band" in section:
+        band = check.mapping(section["band"], "regression.band", optional=("dy", "dx"))
+        if band and "dy" in band:
+            found["dy"] = check.number(band["dy"], "regression.band.dy", minimum=0.0)
+        if band and "dx" in band:
+            found["dx"] = check.number(band["dx"], "regression.band.dx", minimum=1, integer=True)
+    if "points" in section:
+        points = check.number(section["points"], "regression.points", minimum=10, integer=True)
+        if points is not None and points > 100_000:
+            check.fail("regression.points", f"at most 100000 (a baseline is meant to stay small), got {points}")
+            points = None
+        found["points"] = points
+    return Regression(**{k: v for k, v in found.items() if v is not None})
 
 
 def _plant(check: Checker, value, folder: Path):

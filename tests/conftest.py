@@ -2,7 +2,10 @@
 
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
+from pathlib import Path
 
 # before any furuta_cosim import reads it: every test run builds its FMUs from the sources
 os.environ["FURUTA_COSIM_CACHE"] = tempfile.mkdtemp(prefix="furuta-cosim-test-cache-")
@@ -34,3 +37,14 @@ def furuta_fmu():
 @pytest.fixture(scope="session")
 def toy_fmu():
     return build_fmu("toy")
+
+
+@pytest.fixture(scope="session")
+def foreign_fmu(tmp_path_factory):
+    """The pendulum built by another exporter (pythonfmu) from tests/foreign/pendulum_fmu.py,
+    written independently of fmu_src/furuta, under other variable names."""
+    folder = tmp_path_factory.mktemp("foreign-fmu")
+    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
+                    str(Path(__file__).parent / "foreign" / "pendulum_fmu.py"), "-d", str(folder)],
+                   check=True, capture_output=True)
+    return folder / "ForeignPendulum.fmu"

@@ -6,9 +6,6 @@ same pendulum, written independently of fmu_src/furuta, under other variable nam
 
 import json
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +16,6 @@ from furuta_cosim.scenario import load_scenario
 
 from conftest import run_cli
 
-HERE = Path(__file__).parent
 MAPPING = """\
 plant:
   fmu: ForeignPendulum.fmu
@@ -33,12 +29,10 @@ plant:
 
 
 @pytest.fixture(scope="module")
-def foreign(tmp_path_factory):
+def foreign(tmp_path_factory, foreign_fmu):
     """The scenario folder: ForeignPendulum.fmu and paper-step with the plant mapped onto it."""
     folder = tmp_path_factory.mktemp("foreign")
-    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
-                    str(HERE / "foreign" / "pendulum_fmu.py"), "-d", str(folder)],
-                   check=True, capture_output=True)
+    shutil.copy(foreign_fmu, folder / foreign_fmu.name)
     text = load_scenario("paper-step").path.read_text()
     plant = text[text.index("plant:"):text.index("timing:")]
     (folder / "paper-step-mapped.yaml").write_text(text.replace(plant, MAPPING))

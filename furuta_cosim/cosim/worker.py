@@ -18,8 +18,28 @@ from furuta_cosim.cosim.evaluation import evaluate
 from furuta_cosim.cosim.master import Prepared
 from furuta_cosim.cosim.result import RunResult
 
+# one BLAS thread per worker: several threads on busy cores slow everything down
+SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
 _SESSIONS: dict = {}
 _PREPARED: dict[str, Prepared] = {}
+
+
+def start_pool(workers: int):
+    """A pool of ``workers`` local processes, each with one BLAS thread."""
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
+    os.environ.update(SINGLE_THREAD)  # inherited by the workers
+    try:
+        return ProcessPoolExecutor(workers)
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def session_for(prepared: Prepared):

@@ -9,15 +9,13 @@ goes on (a dead local worker pool is started again).
 
 from __future__ import annotations
 
-import os
 import traceback
 
+from furuta_cosim.cosim.worker import SINGLE_THREAD, start_pool
 from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import TuningSpec
 
 _EVALUATORS: dict[str, Evaluator] = {}
-# one BLAS thread per worker: several threads on busy cores slow everything down
-SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def failed(spec: TuningSpec, error: str) -> Outcome:
@@ -67,18 +65,7 @@ class Processes:
         self._pool = None
 
     def _start(self):
-        from concurrent.futures import ProcessPoolExecutor
-
-        saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
-        os.environ.update(SINGLE_THREAD)  # inherited by the workers
-        try:
-            self._pool = ProcessPoolExecutor(self.workers)
-        finally:
-            for key, value in saved.items():
-                if value is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = value
+        self._pool = start_pool(self.workers)
 
     def map(self, xs) -> list[Outcome]:
         from concurrent.futures.process import BrokenProcessPool

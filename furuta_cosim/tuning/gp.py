@@ -19,7 +19,7 @@ class Memory:
     """Shared by every clone of one estimator (a deep copy returns the same object)."""
 
     def __init__(self):
-        self.kernel, self.fits = None, 0
+        self.kernel, self.noise, self.fits = None, None, 0
 
     def __deepcopy__(self, memo):
         return self
@@ -42,10 +42,13 @@ class WarmGaussianProcess(GaussianProcessRegressor):
             kernel = clone(memory.kernel)
             present, name = _param_for_white_kernel_in_Sum(kernel)
             if present:  # the fitted kernel has its noise zeroed for prediction: restore it
-                kernel.set_params(**{name: WhiteKernel(noise_level=self.noise, noise_level_bounds="fixed")})
+                if self.noise == "gaussian":  # fitted: start from (or keep) the last fitted level
+                    kernel.set_params(**{name: WhiteKernel(noise_level=memory.noise)})
+                else:
+                    kernel.set_params(**{name: WhiteKernel(noise_level=self.noise, noise_level_bounds="fixed")})
             self.kernel = kernel
             if memory.fits % self.refit_every:
                 self.optimizer = None
         super().fit(X, y)
-        memory.kernel = self.kernel_
+        memory.kernel, memory.noise = self.kernel_, self.noise_
         return self

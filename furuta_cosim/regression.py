@@ -1,0 +1,530 @@
+"""Scenario-driven regression: every controller of every scenario against its baseline.
+
+A baseline is one small YAML file per scenario and controller,
+``<scenario folder>/baselines/<scenario>/<controller>.yaml``: the metrics of the run, its trace
+downsampled to about ``regression.points`` rows (one row per line, so a change shows as a
+diff), and the versions it was made from (a hash of the scenario file and of the controller
+file, the plant FMU's GUID and parameters). A baseline made from another version of its
+scenario or controller file is refused: the comparison would not mean anything.
+
+Metrics are compared within the scenario's ``regression`` tolerances; traces within a band
+around the baseline's, with fmpy's ``validate_signal`` (the band of the Modelica CSV-compare
+tool). The command-line interface only formats what :func:`regress` returns.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from furuta_cosim import __version__, paths
+from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.cosim.evaluation import Compiled, runs, scenario_controllers
+from furuta_cosim.cosim.master import Prepared, prepare
+from furuta_cosim.cosim.result import RunResult
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.files import write_text
+from furuta_cosim.scenario import Scenario, load_scenario
+
+FORMAT = 1
+_PLAIN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+
+
+def file_hash(path: Path | None) -> str | None:
+    """The first 16 hex digits of the file's SHA-256 (None without a file)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] if path else None
+
+
+def baseline_path(scenario: Scenario, controller: str, folder: Path | None = None) -> Path:
+    """Where the baseline of ``controller`` on ``scenario`` lives (``folder``: another root)."""
+    for name in (scenario.name, controller):
+        if not _PLAIN.fullmatch(name):
+            raise ConfigError([f"{scenario.source}: {name!r} cannot name a baseline file "
+                               "(letters, digits, '.', '_', '-')"])
+    root = folder if folder is not None else (
+        scenario.path.parent if scenario.path else paths.scenarios()) / "baselines"
+    return Path(root) / scenario.name / f"{controller}.yaml"
+
+
+@dataclass
+class Difference:
+    """One thing that moved: a metric, a trace signal, or whether the run finished."""
+
+    kind: str          # "metric", "trace", "run"
+    name: str
+    expected: object
+    got: object
+    detail: str = ""
+
+    def describe(self) -> str:
+        return f"{self.name}: expected {_show(self.expected)}, got {_show(self.got)}" + (
+            f" ({self.detail})" if self.detail else "")
+
+
+@dataclass
+class Case:
+    """One scenario and controller: its status and what moved."""
+
+    scenario: str
+    controller: str
+    baseline: Path
+    status: str                    # pass, fail, missing, new, updated, unchanged
+    differences: list[Difference] = field(default_factory=list)
+    checked: int = 0               # metrics and signals compared
+    wall_time: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def failed(self) -> bool:
+        return self.status in ("fail", "missing")
+
+    def lines(self) -> list[str]:
+        if self.status == "missing":
+            return [f"{self.scenario} / {self.controller}: no baseline at {self.baseline} "
+                    "(regress --update makes it)"]
+        return [f"{self.scenario} / {self.controller}: {d.describe()}" for d in self.differences]
+
+    def to_dict(self) -> dict:
+        return {"scenario": self.scenario, "controller": self.controller, "status": self.status,
+                "baseline": str(self.baseline), "checked": self.checked, "wall_time": self.wall_time, "notes": self.notes,
+                "differences": [{"kind": d.kind, "name": d.name, "expected": _json(d.expected),
+                                 "got": _json(d.got), "detail": d.detail} for d in self.differences]}
+
+
+# ---------------------------------------------------------------------------------------------
+# baselines: made from a result, read back strictly
+
+
+def make_baseline(prepared: Prepared, compiled: Compiled, result: RunResult) -> dict:
+    scenario = prepared.scenario
+    trace = result.trace
+    every = max(1, math.ceil(len(trace.t) / scenario.regression.points))
+    columns = trace.columns()
+    rows = np.column_stack([trace[c][::every] for c in columns]) if len(trace.t) else np.zeros((0, len(columns)))
+    from fmpy import read_model_description
+
+    description = read_model_description(str(prepared.fmu))
+    return {
+        "format": FORMAT,
+        "scenario": {"name": scenario.name, "sha256": file_hash(scenario.path)},
+        "controller": {"name": compiled.name, "sha256": file_hash(compiled.cfile.path)},
+        "plant": {"fmu": description.coSimulation.modelIdentifier, "guid": description.guid,
+                  "parameters": scenario.plant or None,
+                  "start": {k: _number(v) for k, v in sorted(prepared.start.items())}},
+        "made_with": f"furuta-cosim {__version__}",
+        "failure": result.failure,
+        "metrics": {k: _number(v) for k, v in sorted(result.metrics.items())},
+        "trace": {"every": every, "columns": columns,
+                  "rows": [[_number(v) for v in row] for row in rows.tolist()]},
+    }
+
+
+def baseline_text(document: dict) -> str:
+    """YAML with one trace row per line (diffable), numbers to 10 significant digits."""
+    import yaml
+
+    head = {k: v for k, v in document.items() if k != "trace"}
+    trace = document["trace"]
+    text = ["# A regression baseline written by 'furuta-cosim regress --update'; compared by "
+            "'furuta-cosim regress'.",
+            yaml.safe_dump(head, sort_keys=False, default_flow_style=False, width=1000).rstrip(),
+            "trace:", f"  every: {trace['every']}",
+            f"  columns: [{', '.join(trace['columns'])}]", "  rows:"]
+    text += ["    - [" + ", ".join(_yaml_number(v) for v in row) + "]" for row in trace["rows"]]
+    return "\n".join(text) + "\n"
+
+
+def read_baseline(path: Path) -> dict:
+    """A baseline file, checked key by key; ConfigError naming the file and key otherwise."""
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", required=("format", "scenario", "controller", "metrics", "trace"),
+                        optional=("plant", "made_with", "failure"))
+    if top is None:
+        check.done()
+    if "format" in top and top["format"] != FORMAT:
+        check.fail("format", f"expected {FORMAT}, got {top['format']!r}")
+    for part in ("scenario", "controller"):
+        if part in top:
+            section = check.mapping(top[part], part, required=("name", "sha256"))
+            if section:
+                check.string(section.get("name"), f"{part}.name")
+                if section.get("sha256") is not None:
+                    check.string(section.get("sha256"), f"{part}.sha256")
+    if top.get("failure") is not None:
+        check.string(top["failure"], "failure")
+    metrics = {}
+    if "metrics" in top:
+        raw = top["metrics"]
+        entries = check.mapping(raw, "metrics", optional=tuple(raw) if isinstance(raw, dict) else ())
+        for name, value in (entries or {}).items():
+            if value is None:
+                metrics[str(name)] = math.inf
+            elif check.number(value, f"metrics.{name}") is not None:
+                metrics[str(name)] = float(value)
+    trace = None
+    if "trace" in top:
+        section = check.mapping(top["trace"], "trace", required=("every", "columns", "rows"))
+        if section and all(k in section for k in ("every", "columns", "rows")):
+            check.number(section["every"], "trace.every", minimum=1, integer=True)
+            columns = check.names(section["columns"], "trace.columns")
+            rows = section["rows"]
+            if columns and "t" not in columns:
+                check.fail("trace.columns", f"expected a column t, got {columns}")
+            elif columns and _rows_ok(check, rows, len(columns)):
+                values = np.array(rows, dtype=float).reshape(len(rows), len(columns))
+                if len(values) and np.any(np.diff(values[:, columns.index("t")]) <= 0):
+                    check.fail("trace.rows", "the times (column t) must increase")
+                else:
+                    trace = {c: values[:, j] for j, c in enumerate(columns)}
+    check.done()
+    return {**top, "metrics": metrics, "trace": trace}
+
+
+def _rows_ok(check: Checker, rows, width: int) -> bool:
+    if not isinstance(rows, list):
+        check.fail("trace.rows", f"expected a list of rows, got {type(rows).__name__}")
+        return False
+    for k, row in enumerate(rows):
+        if (not isinstance(row, list) or len(row) != width
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)):
+            check.fail(f"trace.rows[{k}]", f"expected {width} numbers, got {_brief(row)}")
+            return False
+    return True
+
+
+def check_versions(baseline: dict, path: Path, prepared: Prepared, compiled: Compiled) -> None:
+    """A baseline made for another scenario or controller, or from another version of its
+    scenario file: ConfigError. (A changed controller file is what regression is for: its
+    runs are compared, and the change is noted in the report.)"""
+    problems = []
+    scenario = prepared.scenario
+    for part, name in (("scenario", scenario.name), ("controller", compiled.name)):
+        if baseline[part]["name"] != name:
+            problems.append(f"{path}: {part}.name: made for {baseline[part]['name']!r}, not {name!r}")
+    if not problems and baseline["scenario"].get("sha256") != file_hash(scenario.path):
+        problems.append(f"{path}: scenario.sha256: made from another version of {scenario.source} "
+                        f"({baseline['scenario'].get('sha256')}, now {file_hash(scenario.path)}); "
+                        "check the change, then run 'furuta-cosim regress --update'")
+    if problems:
+        raise ConfigError(problems)
+
+
+# ---------------------------------------------------------------------------------------------
+# comparison
+
+
+def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list[Difference], int]:
+    """What moved between ``baseline`` and ``result``, and how many things were compared."""
+    tolerance = scenario.regression
+    differences = []
+    if (baseline.get("failure") is None) != (result.failure is None):
+        differences.append(Difference("run", "run", baseline.get("failure") or "to the end",
+                                      result.failure or "to the end"))
+    checked = 0
+    for name, expected in baseline["metrics"].items():
+        checked += 1
+        got = result.metrics.get(name)
+        if got is None:
+            differences.append(Difference("metric", name, expected, "not computed"))
+            continue
+        rtol, atol = tolerance.tolerance(name)
+        if not _close(got, expected, rtol, atol):
+            differences.append(Difference("metric", name, expected, got, f"rtol {rtol:g}, atol {atol:g}"))
+    for name in sorted(set(result.metrics) - set(baseline["metrics"])):
+        differences.append(Difference("metric", name, "not in the baseline", result.metrics[name]))
+    reference = baseline["trace"]
+    if reference is not None and len(reference["t"]) >= 2:
+        t = result.trace.t
+        for name, y_ref in reference.items():
+            if name == "t":
+                continue
+            checked += 1
+            try:
+                y = result.trace[name]
+            except KeyError:
+                differences.append(Difference("trace", name, "a recorded signal", "not recorded"))
+                continue
+            outside = _outside_band(t, y, reference["t"], y_ref, tolerance.dy, tolerance.dx)
+            if outside:
+                k = outside[0]
+                at = reference["t"][k]
+                differences.append(Difference(
+                    "trace", name, f"{_show(float(y_ref[k]))} at t = {at:.6g}",
+                    float(np.interp(at, t, y)), f"{len(outside)} of {len(reference['t'])} baseline "
+                    f"points outside the band (dy {tolerance.dy:g}, dx {tolerance.dx})"))
+    return differences, checked
+
+
+def _outside_band(t, y, t_ref, y_ref, dy: float, dx: int) -> list[int]:
+    """Indices of the baseline's instants where y(t), taken at those instants, lies outside
+    the band around y_ref (fmpy's band). Both are compared at the baseline's instants, so that
+    an unchanged run matches its downsampled baseline exactly."""
+    from fmpy.util import validate_signal
+
+    t_ref = np.array(t_ref, dtype=float)  # validate_signal may nudge duplicate times in place
+    y_ref = np.asarray(y_ref, dtype=float)
+    t = np.asarray(t, dtype=float)
+    covered = (t_ref >= t[0]) & (t_ref <= t[-1]) if len(t) else np.zeros(len(t_ref), bool)
+    finite = np.isfinite(y_ref) & covered  # a diverged baseline: where it was still finite
+    t_ref, y_ref = t_ref[finite], y_ref[finite]
+    if len(t_ref) < 2:
+        return []
+    y_at = np.interp(t_ref, t, np.asarray(y, dtype=float))
+    _, _, _, out = validate_signal(t=t_ref, y=y_at, t_ref=t_ref.copy(), y_ref=y_ref,
+                                   num=len(t_ref), dx=2 * dx + 1, dy=dy)
+    # validate_signal leaves the first and last instants out; they count here
+    out[[0, -1]] = False
+    ends = [0, len(t_ref) - 1]
+    band = max(float(np.ptp(y_ref)) * dy, 0.5 if not y_ref.any() else 0.0)
+    for k in ends:
+        out[k] = abs(y_at[k] - y_ref[k]) > band
+    out |= ~np.isfinite(y_at)
+    return [int(k) for k in np.flatnonzero(out)]
+
+
+def _close(got: float, expected: float, rtol: float, atol: float) -> bool:
+    if not (math.isfinite(got) and math.isfinite(expected)):  # a baseline keeps "not finite" only
+        return not (math.isfinite(got) or math.isfinite(expected))
+    return abs(got - expected) <= atol + rtol * abs(expected)
+
+
+# ---------------------------------------------------------------------------------------------
+# the run
+
+
+@dataclass
+class Report:
+    cases: list[Case]
+    update: bool
+    fmu: str | None
+    overrides: dict
+    wall_time: float
+    versions: dict
+
+    @property
+    def failed(self) -> list[Case]:
+        return [c for c in self.cases if c.failed]
+
+    def to_dict(self) -> dict:
+        return {"passed": not self.failed, "update": self.update, "fmu": self.fmu,
+                "overrides": self.overrides, "wall_time": self.wall_time, "versions": self.versions,
+                "cases": [c.to_dict() for c in self.cases]}
+
+
+def scenario_files(names: Sequence[str | Path] | None) -> list[Path]:
+    """The scenario files named (files, names of ``scenarios/``, or folders of scenario
+    files); none named: every shipped scenario."""
+    from furuta_cosim.scenario import scenario_path
+
+    if not names:
+        return sorted(paths.scenarios().glob("*.yaml"))
+    found = []
+    for name in names:
+        path = Path(name)
+        if path.is_dir():
+            files = sorted(path.glob("*.yaml"))
+            if not files:
+                raise ConfigError([f"{path}: no scenario files (*.yaml) in this folder"])
+            found += files
+        else:
+            found.append(scenario_path(name))
+    return list(dict.fromkeys(found))
+
+
+def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
+            fmu: str | Path | None = None, mapping: str | Path | None = None,
+            overrides: dict | None = None, workers: int = 1, baselines: Path | None = None,
+            progress: Callable[[int, int], None] | None = None) -> Report:
+    """Run every controller of every scenario named and compare each with its baseline
+    (``update``: write the baselines instead, reporting what changed).
+
+    ``fmu`` (with ``mapping``, a plant-mapping file, for another tool's FMU) and ``overrides``
+    (FMU parameters) run the same scenarios on another plant; they cannot be combined with
+    ``update``. Bad input of any kind, a corrupt baseline or one made from another version of
+    its files among it, is a ConfigError raised before any baseline is written.
+    """
+    import time
+
+    if update and (fmu or overrides or mapping):
+        raise ConfigError(["--update writes the baselines from the scenarios' own plants; "
+                           "leave out --fmu, --mapping and --params"])
+    if (fmu or mapping) and not names:
+        raise ConfigError(["--fmu: name the scenarios to run on it (the shipped scenarios are for "
+                           "several plants)"])
+    if mapping and not fmu:
+        raise ConfigError(["--mapping: maps the variables of an FMU given with --fmu; give one"])
+    started = time.perf_counter()
+    plant_mapping = load_mapping(mapping) if mapping else None
+    jobs = []   # (prepared, compiled, baseline path, baseline or None)
+    problems = []
+    for path in scenario_files(names):
+        scenario = load_scenario(path)
+        if plant_mapping is not None:
+            from dataclasses import replace
+
+            scenario = replace(scenario, mapping=plant_mapping[1],
+                               control_input=plant_mapping[0] or scenario.control_input)
+        prepared = prepare(scenario, fmu=fmu, overrides=overrides)
+        for compiled in scenario_controllers(prepared):
+            target = baseline_path(scenario, compiled.name, baselines)
+            baseline = None
+            if target.exists():
+                try:
+                    baseline = read_baseline(target)
+                    if not update:
+                        check_versions(baseline, target, prepared, compiled)
+                except ConfigError as error:
+                    problems += error.problems
+                    if update:
+                        problems.append(f"{target}: refusing to overwrite a baseline that cannot be "
+                                        "read; move it away or repair it first")
+            jobs.append((prepared, compiled, target, baseline))
+    if problems:
+        raise ConfigError(problems)
+    results = _run_all(jobs, workers, progress)
+    cases = []
+    for (prepared, compiled, target, baseline), result in zip(jobs, results):
+        case = Case(prepared.scenario.name, compiled.name, target, "pass", wall_time=result.wall_time)
+        if baseline is not None:
+            case.differences, case.checked = compare(baseline, result, prepared.scenario)
+            if baseline["controller"].get("sha256") != file_hash(compiled.cfile.path):
+                case.notes.append(f"{compiled.cfile.source} changed since the baseline was made")
+        if update:
+            document = make_baseline(prepared, compiled, result)
+            old = target.read_text() if target.exists() else None
+            text = baseline_text(document)
+            case.status = "new" if old is None else ("unchanged" if old == text else "updated")
+            if old != text:
+                write_text(target, text)
+        elif baseline is None:
+            case.status = "missing"
+        elif case.differences:
+            case.status = "fail"
+        cases.append(case)
+    import fmpy
+
+    versions = {"furuta-cosim": __version__, "fmpy": fmpy.__version__, "numpy": np.__version__}
+    return Report(cases, update, str(fmu) if fmu else None, dict(overrides or {}),
+                  time.perf_counter() - started, versions)
+
+
+def _run_all(jobs, workers: int, progress) -> list[RunResult]:
+    total = len(jobs)
+    if workers <= 1 or total <= 1:
+        results = []
+        by_scenario: dict = {}
+        for prepared, compiled, _, _ in jobs:
+            by_scenario.setdefault(prepared.key, (prepared, []))[1].append(compiled)
+        done = {}
+        for prepared, compiled_list in by_scenario.values():
+            for compiled, result in zip(compiled_list, runs(prepared, compiled_list)):
+                done[(prepared.key, id(compiled))] = result
+                if progress:
+                    progress(len(done), total)
+        for prepared, compiled, _, _ in jobs:
+            results.append(done[(prepared.key, id(compiled))])
+        return results
+    from furuta_cosim.cosim.worker import evaluate_here, start_pool
+
+    pool = start_pool(min(workers, total))
+    try:
+        futures = [pool.submit(evaluate_here, prepared, compiled) for prepared, compiled, _, _ in jobs]
+        results = []
+        for k, future in enumerate(futures):
+            results.append(future.result())
+            if progress:
+                progress(k + 1, total)
+        return results
+    finally:
+        pool.shutdown(cancel_futures=True)
+
+
+def load_mapping(path: str | Path):
+    """A plant-mapping file for ``--mapping``: ``control_input`` and the ``states``,
+    ``disturbances`` and ``initial`` of a scenario's ``plant.mapping``."""
+    from furuta_cosim.scenario import _mapping
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError([f"--mapping {path}: no such file"])
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", optional=("control_input", "states", "disturbances", "initial"))
+    control_input = None
+    if top and "control_input" in top:
+        control_input = check.string(top["control_input"], "control_input")
+    mapping = _mapping(check, {k: v for k, v in (top or {}).items() if k != "control_input"})
+    check.done()
+    return control_input, mapping
+
+
+# ---------------------------------------------------------------------------------------------
+# JUnit XML
+
+
+def junit_xml(report: Report) -> str:
+    """The report as JUnit XML: a test suite per scenario, a test case per controller."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.Element("testsuites", name="furuta-cosim regress", tests=str(len(report.cases)),
+                      failures=str(len(report.failed)), time=f"{report.wall_time:.3f}")
+    suites: dict[str, ET.Element] = {}
+    for case in report.cases:
+        suite = suites.get(case.scenario)
+        if suite is None:
+            suite = suites[case.scenario] = ET.SubElement(root, "testsuite", name=case.scenario,
+                                                          tests="0", failures="0")
+        suite.set("tests", str(int(suite.get("tests")) + 1))
+        element = ET.SubElement(suite, "testcase", classname=case.scenario, name=case.controller,
+                                time=f"{case.wall_time:.3f}")
+        if case.failed:
+            suite.set("failures", str(int(suite.get("failures")) + 1))
+            lines = case.lines()
+            failure = ET.SubElement(element, "failure", message=lines[0] if lines else case.status,
+                                    type="regression" if case.status == "fail" else "missing-baseline")
+            failure.text = "\n".join(lines)
+        properties = ET.SubElement(element, "properties")
+        ET.SubElement(properties, "property", name="baseline", value=str(case.baseline))
+        ET.SubElement(properties, "property", name="checked", value=str(case.checked))
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def write_junit(report: Report, path: str | Path) -> Path:
+    return write_text(path, junit_xml(report))
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _number(value):
+    value = float(value)
+    return float(f"{value:.10g}") if math.isfinite(value) else None
+
+
+def _yaml_number(value) -> str:
+    if value is None:
+        return ".nan"
+    return repr(float(value))
+
+
+def _show(value) -> str:
+    return format(value, ".6g") if isinstance(value, float) else str(value)
+
+
+def _json(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _brief(value) -> str:
+    text = repr(value)
+    return text if len(text) < 60 else text[:57] + "..."

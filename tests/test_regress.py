@@ -1,0 +1,177 @@
+"""Scenario-driven regression: baselines, tolerances, JUnit, other FMUs, bad input."""
+
+import json
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from furuta_cosim import paths
+from furuta_cosim.regression import regress
+
+from conftest import run_cli
+
+SHIPPED = sorted(p.stem for p in paths.scenarios().glob("*.yaml"))
+MAPPING = """\
+control_input: voltage
+states: {theta0: arm_angle, dtheta0: arm_rate, theta1: pend_angle, dtheta1: pend_rate, i: current}
+disturbances: {tau0: arm_torque, tau1: pend_torque}
+initial: {theta1: pend_angle_0}
+"""
+
+
+def test_every_shipped_scenario_matches_its_baseline_and_junit_says_so(tmp_path, capsys):
+    junit = tmp_path / "regress.xml"
+    code, out, err = run_cli(capsys, "regress", "--workers", "2", "--junit", str(junit))
+    assert code == 0, out + err
+    root = ET.parse(junit).getroot()
+    cases = root.findall("./testsuite/testcase")
+    # every controller of every shipped scenario, none failed, each compared on something
+    assert {s.get("name") for s in root.findall("testsuite")} == set(SHIPPED)
+    assert len(cases) == 2 * len(SHIPPED) and root.get("failures") == "0"
+    assert not root.findall(".//failure")
+    checked = [int(c.find("properties/property[@name='checked']").get("value")) for c in cases]
+    assert min(checked) >= 10
+
+
+def test_a_changed_plant_parameter_is_a_regression_naming_what_moved(capsys):
+    code, out, _ = run_cli(capsys, "regress", "paper-step", "--params", "C1=1e-4", "--workers", "1")
+    assert code == 1
+    lines = [line for line in out.splitlines() if line.startswith("REGRESSION paper-step / lqr-paper: ")]
+    assert lines, out
+    metric = [line for line in lines if ": u.rms: expected " in line]
+    assert metric and ", got " in metric[0], lines
+
+
+def _own_scenario(tmp_path) -> Path:
+    """paper-step with its own copy of lqr-paper, beside it in tmp_path."""
+    controller = (paths.scenarios() / "controllers" / "lqr-paper.yaml").read_text()
+    (tmp_path / "mine.yaml").write_text(controller.replace("name: lqr-paper", "name: mine"))
+    text = (paths.scenarios() / "paper-step.yaml").read_text()
+    text = text.replace("controllers: [lqr-paper, bo-paper]", "controllers: [mine.yaml]")
+    text = text.replace("controllers: [lqr-paper]}", "controllers: [mine]}")
+    (tmp_path / "step.yaml").write_text(text.replace("name: paper-step", "name: step"))
+    return tmp_path / "step.yaml"
+
+
+def test_a_perturbed_controller_is_a_regression_and_update_says_what_changed(tmp_path, capsys):
+    scenario = _own_scenario(tmp_path)
+    code, out, _ = run_cli(capsys, "regress", str(scenario), "--update")
+    assert code == 0 and "step  " in out and " new" in out
+    baseline = tmp_path / "baselines" / "step" / "mine.yaml"
+    assert baseline.is_file()
+    code, out, _ = run_cli(capsys, "regress", str(scenario))
+    assert code == 0, out
+    controller = tmp_path / "mine.yaml"
+    text = controller.read_text()
+    perturbed = text.replace("K: [-0.3105225402877734,", "K: [-0.32,")  # the arm gain, 3 %
+    assert perturbed != text
+    controller.write_text(perturbed)
+    code, out, _ = run_cli(capsys, "regress", str(scenario), "--json")
+    assert code == 1
+    case = json.loads(out)["cases"][0]
+    assert case["status"] == "fail" and case["controller"] == "mine"
+    assert any(d["kind"] == "metric" and d["name"] == "error.ISE" for d in case["differences"])
+    assert case["notes"] and "changed since the baseline" in case["notes"][0]
+    before = baseline.read_text()
+    code, out, _ = run_cli(capsys, "regress", str(scenario), "--update")
+    assert code == 0 and "updated" in out and "changed    step / mine: error.ISE: expected" in out
+    assert baseline.read_text() != before
+    code, _, _ = run_cli(capsys, "regress", str(scenario))
+    assert code == 0
+
+
+def test_a_missing_baseline_fails_and_says_how_to_make_it(tmp_path, capsys):
+    scenario = _own_scenario(tmp_path)
+    code, out, _ = run_cli(capsys, "regress", str(scenario))
+    assert code == 1 and "REGRESSION step / mine: no baseline at" in out and "--update" in out
+
+
+def test_the_fmu_rebuilt_by_fmpy_compile_passes(tmp_path, furuta_fmu, capsys):
+    rebuilt = tmp_path / "Furuta.fmu"
+    shutil.copy(furuta_fmu, rebuilt)
+    done = subprocess.run([sys.executable, "-m", "fmpy.cli", "compile", str(rebuilt)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert rebuilt.read_bytes() != furuta_fmu.read_bytes()  # a binary of its own
+    names = [n for n in SHIPPED if not n.startswith("toy")]
+    code, out, err = run_cli(capsys, "regress", *names, "--fmu", str(rebuilt), "--workers", "1")
+    assert code == 0, out + err
+    assert f"{2 * len(names)} run(s)" in out and f": {2 * len(names)} pass" in out
+
+
+def test_another_exporters_fmu_passes_through_a_mapping(tmp_path, foreign_fmu, capsys):
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(MAPPING)
+    report = regress(["paper-step"], fmu=foreign_fmu, mapping=mapping, workers=1)
+    assert [c.status for c in report.cases] == ["pass", "pass"], [c.lines() for c in report.cases]
+    assert min(c.checked for c in report.cases) >= 10
+
+
+def _one_line_exit_2(capsys, *argv) -> str:
+    code, out, err = run_cli(capsys, *argv)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, (code, out, err)
+    return lines[0]
+
+
+@pytest.fixture
+def corrupt(tmp_path):
+    scenario = _own_scenario(tmp_path)
+    target = tmp_path / "baselines" / "step" / "mine.yaml"
+    target.parent.mkdir(parents=True)
+    return scenario, target
+
+
+@pytest.mark.parametrize("text, key", [
+    ("format: 1\nscenario: [", "line"),                      # not YAML
+    ("just text", "expected a mapping"),
+    ("format: 2\nscenario: {name: step, sha256: x}\ncontroller: {name: mine, sha256: x}\n"
+     "metrics: {}\ntrace: {every: 1, columns: [t], rows: []}\n", "format: expected 1"),
+    ("format: 1\nscenario: {name: step, sha256: x}\ncontroller: {name: mine, sha256: x}\n"
+     "metrics: {a.b: yes}\ntrace: {every: 1, columns: [t, u], rows: [[0, 1]]}\n", "metrics.a.b"),
+    ("format: 1\nscenario: {name: step, sha256: x}\ncontroller: {name: mine, sha256: x}\n"
+     "metrics: {}\ntrace: {every: 1, columns: [t, u], rows: [[0, 1], [1]]}\n", "trace.rows[1]"),
+    ("format: 1\nscenario: {name: step, sha256: x}\ncontroller: {name: mine, sha256: x}\n"
+     "metrics: {}\ntrace: {every: 1, columns: [t, u], rows: [[1, 1], [0, 1]]}\n", "trace.rows: the times"),
+])
+def test_a_corrupt_baseline_is_one_line_and_never_overwritten(corrupt, capsys, text, key):
+    scenario, target = corrupt
+    target.write_text(text)
+    line = _one_line_exit_2(capsys, "regress", str(scenario))
+    assert line.startswith(f"error: {target}") and key in line, line
+    code, out, err = run_cli(capsys, "regress", str(scenario), "--update")
+    assert code == 2 and "refusing to overwrite" in err
+    assert target.read_text() == text
+
+
+def test_a_baseline_of_another_scenario_version_is_refused(tmp_path, capsys):
+    scenario = _own_scenario(tmp_path)
+    run_cli(capsys, "regress", str(scenario), "--update")
+    scenario.write_text(scenario.read_text().replace("duration: 10.0", "duration: 9.0"))
+    line = _one_line_exit_2(capsys, "regress", str(scenario))
+    assert "scenario.sha256: made from another version of" in line and "--update" in line
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["paper-step", "--fmu", "missing.fmu"], "--fmu missing.fmu: no such FMU file"),
+    (["--fmu", "x.fmu"], "--fmu: name the scenarios"),
+    (["paper-step", "--params", "C1=abc"], "--params C1=abc: expected NAME=NUMBER"),
+    (["paper-step", "--params", "nosuchset"], "nosuchset"),
+    (["paper-step", "--update", "--params", "C1=1e-4"], "--update writes the baselines"),
+    (["nosuchscenario"], "nosuchscenario"),
+])
+def test_bad_arguments_are_one_line(capsys, argv, expected):
+    line = _one_line_exit_2(capsys, "regress", *argv)
+    assert expected in line, line
+
+
+def test_an_fmu_that_does_not_fit_the_mapping_is_one_line(tmp_path, foreign_fmu, capsys):
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(MAPPING.replace("pend_angle,", "pendulum_angle,"))
+    line = _one_line_exit_2(capsys, "regress", "paper-step", "--fmu", str(foreign_fmu),
+                            "--mapping", str(mapping))
+    assert "plant.mapping.states.theta1: ForeignPendulum has no Real output 'pendulum_angle'" in line
