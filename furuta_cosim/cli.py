@@ -356,11 +356,15 @@ def _overrides(items) -> dict:
 def cmd_regress(args) -> int:
     import os
 
-    from furuta_cosim.files import output_file
+    from pathlib import Path
+
+    from furuta_cosim.files import output_file, output_folder, write_text
     from furuta_cosim.regression import regress, write_junit
 
     if args.junit:
         output_file(args.junit, "--junit")
+    if args.output:
+        output_folder(args.output)
     workers = args.workers or (os.cpu_count() or 1)
     bar = _Progress(delay=0.0, unit="run")
     try:
@@ -372,6 +376,9 @@ def cmd_regress(args) -> int:
         bar.close()
     if args.junit:
         write_junit(report, args.junit)
+    if args.output:
+        write_text(Path(args.output) / "regress.json", json.dumps(report.to_dict(), indent=1))
+        write_junit(report, Path(args.output) / "regress.xml")
     if args.json:
         print(json.dumps(report.to_dict()))
         return EXIT_FAILED if report.failed else 0
@@ -397,6 +404,44 @@ def cmd_regress(args) -> int:
           + ", ".join(f"{n} {status}" for status, n in counts.items())
           + (f"; JUnit XML in {args.junit}" if args.junit else ""))
     return EXIT_FAILED if report.failed else 0
+
+
+def cmd_export_controller(args) -> int:
+    from pathlib import Path
+
+    from furuta_cosim.export import export_controller
+    from furuta_cosim.files import output_file, output_folder
+
+    if args.output:
+        wanted = Path(args.output)
+        (output_file if wanted.suffix == ".fmu" else output_folder)(wanted)
+    path = export_controller(args.controller, output=args.output, period=args.period,
+                             model=args.model, delay=args.delay,
+                             log=lambda line: print(line, file=sys.stderr))
+    print(path)
+    return 0
+
+
+def cmd_report(args) -> int:
+    from furuta_cosim.report.pages import write_report
+
+    print(write_report(args.folder, args.output))
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    import os
+    from pathlib import Path
+
+    from furuta_cosim.reproduce import reproduce
+
+    out = Path(args.output or "reproduction")
+    document = reproduce(out, budget=args.budget, workers=args.workers or (os.cpu_count() or 1),
+                         log=lambda line: print(line, file=sys.stderr))
+    counts = document["counts"]
+    print(", ".join(f"{n} {verdict}" for verdict, n in counts.items())
+          + f"; {out / 'reproduction.html'} and reproduction.md")
+    return 0
 
 
 def cmd_list(args) -> int:
@@ -504,9 +549,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", action="append", metavar="SET",
                    help="plant parameters on top of the scenarios': a plant file, or NAME=VALUE (repeatable)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
+    p.add_argument("-o", "--output", metavar="DIR",
+                   help="also write regress.json and regress.xml there (furuta-cosim report DIR)")
     p.add_argument("--baselines", metavar="DIR",
                    help="baseline folder (default: baselines/ beside each scenario file)")
     p.set_defaults(handler=cmd_regress)
+
+    p = commands.add_parser("export-controller",
+                            help="build a controller as an FMI 2.0 co-simulation FMU and print its path")
+    p.add_argument("controller", help="controller file or name in scenarios/controllers")
+    p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
+    p.add_argument("--delay", type=int, choices=(0, 1), default=0,
+                   help="1: apply each command one sample late, with no direct feedthrough "
+                        "(the same loop in any master; timing.delay: 1 in a scenario)")
+    p.add_argument("--period", type=float, help="sample a continuous controller at this period "
+                                                "(default: the file's)")
+    p.add_argument("--model", help="model whose states name the inputs (default: the file's)")
+    p.set_defaults(handler=cmd_export_controller)
+
+    p = commands.add_parser("report", help="one self-contained HTML page for a run directory")
+    p.add_argument("folder", help="a run directory of simulate, tune, regress -o or reproduce")
+    p.add_argument("-o", "--output", help="the HTML file (default: DIR/report.html)")
+    p.set_defaults(handler=cmd_report)
+
+    p = commands.add_parser("reproduce", help="the paper, claim by claim: our value and a verdict")
+    p.add_argument("-o", "--output", help="folder (default: reproduction)")
+    p.add_argument("--budget", choices=("quick", "full"), default="quick",
+                   help="tuning calls: quick 30, full 150 (the paper's)")
+    p.add_argument("--workers", type=int, help="worker processes for the tunings (default: one per core)")
+    p.set_defaults(handler=cmd_reproduce)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

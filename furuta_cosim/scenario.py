@@ -172,6 +172,7 @@ class Scenario:
     fmu: Path | None = None             # an FMU to run instead of building plant.model
     mapping: PlantMapping | None = None
     regression: Regression = field(default_factory=Regression)
+    delay: int = 0                      # control samples between a measurement and its command
 
     @property
     def source(self) -> str:
@@ -197,7 +198,7 @@ def load_scenario(name: str | Path) -> Scenario:
     plant, overrides, initial, control_input, fmu, mapping = (
         _plant(check, top["plant"], path.parent) if "plant" in top
         else ("", Frozen({}), Frozen({}), None, None, None))
-    timing = _timing(check, top["timing"]) if "timing" in top else (0.0, None, None)
+    *timing, delay = _timing(check, top["timing"]) if "timing" in top else (0.0, None, None, 0)
     reference = _reference(check, top.get("reference", {"signal": {"type": "constant", "value": 0.0}}))
     noise = _noise(check, top["noise"]) if "noise" in top else None
     disturbances = _disturbances(check, top.get("disturbances", []))
@@ -227,7 +228,7 @@ def load_scenario(name: str | Path) -> Scenario:
     return Scenario(name, description, path,
                     plant, overrides, initial, control_input, *timing, reference, noise,
                     disturbances, limit, controllers, estimator, requirements, window, plot,
-                    fmu, mapping, regression)
+                    fmu, mapping, regression, delay)
 
 
 def _regression(check: Checker, value) -> Regression:
@@ -313,9 +314,9 @@ def _mapping(check: Checker, value) -> PlantMapping | None:
 
 def _timing(check: Checker, value):
     section = check.mapping(value, "timing", required=("duration",),
-                            optional=("control_period", "communication_step"))
+                            optional=("control_period", "communication_step", "delay"))
     if not section:
-        return 0.0, None, None
+        return 0.0, None, None, 0
     duration = check.number(section.get("duration"), "timing.duration", positive=True) if "duration" in section else None
     period = step = None
     if "control_period" in section:
@@ -324,7 +325,13 @@ def _timing(check: Checker, value):
         step = check.number(section["communication_step"], "timing.communication_step", positive=True)
     if duration and period and duration < period:
         check.fail("timing.duration", f"must be at least one control period ({period:g}), got {duration:g}")
-    return duration or 0.0, period, step
+    delay = 0
+    if "delay" in section:
+        if section["delay"] not in (0, 1) or isinstance(section["delay"], bool):
+            check.fail("timing.delay", f"expected 0 or 1 (control samples), got {section['delay']!r}")
+        else:
+            delay = int(section["delay"])
+    return duration or 0.0, period, step, delay
 
 
 def _signal(check: Checker, value, key: str) -> Signal | None:

@@ -89,7 +89,8 @@ def compile_controller(prepared: Prepared, controller, *, key: str | None = None
     except ConfigError as error:
         raise error.within(where) from None
     c = discretize_controller(cfile.controller, prepared.control_period)
-    return Compiled(cfile, RuntimeController(c, cfile.F if cfile.F is not None else 1.0))
+    return Compiled(cfile, RuntimeController(c, cfile.F if cfile.F is not None else 1.0,
+                                             delay=prepared.scenario.delay))
 
 
 def scenario_controllers(prepared: Prepared, names: Sequence | None = None) -> list[Compiled]:

@@ -25,12 +25,14 @@ def _compile(source: str, kind: str):
 class RuntimeController:
     """u[k] = F rbar[k] - (Cc xc[k] + Dc x[k]);  xc[k+1] = Ac xc[k] + Bc x[k] (single input).
 
-    ``__call__(x, rbar)`` returns u and advances the controller state; ``reset()`` zeroes it.
-    It pickles as its matrices and is compiled again where it is unpickled.
+    With ``delay=1`` the command computed at sample k is returned at sample k+1 (a computation
+    delay of one control sample; 0 at the first sample). ``__call__(x, rbar)`` returns u and
+    advances the controller state; ``reset()`` zeroes it. It pickles as its matrices and is
+    compiled again where it is unpickled.
     """
 
-    def __init__(self, controller: GeneralizedController, F: float = 1.0):
-        self._made_from = (controller, F)
+    def __init__(self, controller: GeneralizedController, F: float = 1.0, delay: int = 0):
+        self._made_from = (controller, F, delay)
         if not controller.discrete:
             raise ValueError("the runtime needs a discrete controller: discretize it first")
         if controller.Dc.shape[0] != 1:
@@ -39,22 +41,27 @@ class RuntimeController:
         xs = [f"x{j}" for j in range(n)]
         cs = [f"c{j}" for j in range(m)]
         feedback = _dot(np.concatenate([controller.Cc[0], controller.Dc[0]]), cs + xs)
+        if delay not in (0, 1):
+            raise ValueError(f"delay must be 0 or 1 control samples, got {delay}")
+        held = ["held"] if delay else []
         lines = ["def make():"]
-        lines += [f"    {c} = 0.0" for c in cs]
+        lines += [f"    {c} = 0.0" for c in cs + held]
         lines.append("    def control(x, rbar):")
-        if cs:
-            lines.append(f"        nonlocal {', '.join(cs)}")
+        if cs + held:
+            lines.append(f"        nonlocal {', '.join(cs + held)}")
         lines.append(f"        {', '.join(xs)}, = x")
         lines.append(f"        u = {float(F)!r}*rbar - ({feedback})")
+        if delay:
+            lines.append("        u, held = held, u")
         if cs:
             updates = [_dot(np.concatenate([controller.Ac[i], controller.Bc[i]]), cs + xs)
                        for i in range(m)]
             lines.append(f"        {', '.join(cs)}, = {', '.join(updates)},")
         lines.append("        return u")
         lines.append("    def reset():")
-        if cs:
-            lines.append(f"        nonlocal {', '.join(cs)}")
-            lines += [f"        {c} = 0.0" for c in cs]
+        if cs + held:
+            lines.append(f"        nonlocal {', '.join(cs + held)}")
+            lines += [f"        {c} = 0.0" for c in cs + held]
         else:
             lines.append("        pass")
         lines.append(f"    def state():\n        return [{', '.join(cs)}]")

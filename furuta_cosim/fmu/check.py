@@ -66,6 +66,30 @@ def run_ecos(fmu: str | Path, start_values: Mapping[str, float], outputs: Sequen
     return np.array(rows)
 
 
+def run_ecos_connected(fmus: Mapping[str, str | Path], connections: Sequence[tuple[str, str]],
+                       start_values: Mapping[str, float], outputs: Sequence[str],
+                       steps: int, step: float) -> np.ndarray:
+    """Several FMUs connected output to input (``("plant::theta0", "controller::theta0")``)
+    in Ecos: the ``outputs`` (``instance::variable``) at t = 0 and before each later step,
+    ``steps`` rows. Ecos steps every FMU, then copies every connected output to its input."""
+    from ecospy import EcosSimulation, EcosSimulationStructure
+
+    rows = []
+    with EcosSimulationStructure() as structure:
+        for name, fmu in fmus.items():
+            structure.add_model(name, str(Path(fmu).resolve()))
+        for source, sink in connections:
+            structure.make_real_connection(source, sink)
+        structure.add_parameter_set("initial", {k: float(v) for k, v in start_values.items()})
+        with EcosSimulation(structure=structure, step_size=step) as simulation:
+            simulation.init(parameter_set="initial")
+            for _ in range(steps):
+                rows.append([simulation.get_real(name) for name in outputs])
+                simulation.step()
+            simulation.terminate()
+    return np.array(rows)
+
+
 def validate(fmu: str | Path) -> list[Finding]:
     """fmpy validation, a smoke run in our session and in fmpy, and a cross-check in Ecos."""
     from fmpy.validation import validate_fmu

@@ -29,6 +29,9 @@ from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import TuningSpec
 
 METHODS = ("bo", "random", "de")
+# Expected Improvement maximized from the best of this many sampled points by this many L-BFGS
+# starts (scikit-optimize's defaults: 10,000 and 5; tools/bench_tune.py compares)
+ACQUISITION = {"n_points": 2000, "n_restarts_optimizer": 2}
 
 
 def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
@@ -49,10 +52,10 @@ def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
     from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
 
     kernel = cook_estimator("GP", space=dimensions, random_state=seed).kernel
-    gp = WarmGaussianProcess(kernel, random_state=seed, noise=1e-10, refit_every=5, memory=Memory())
+    gp = WarmGaussianProcess(kernel, random_state=seed, noise="gaussian", refit_every=5, memory=Memory())
     return Optimizer(dimensions, base_estimator=gp, acq_func="EI",
                      acq_func_kwargs={"xi": settings.xi}, n_initial_points=settings.n_initial_points,
-                     acq_optimizer="lbfgs", acq_optimizer_kwargs={"n_points": 2000, "n_restarts_optimizer": 2},
+                     acq_optimizer="lbfgs", acq_optimizer_kwargs=dict(ACQUISITION),
                      random_state=seed)
 
 

@@ -1,0 +1,132 @@
+"""A controller file as an FMI 2.0 co-simulation FMU, for tools with no Python in the loop.
+
+The controller at its period is a discrete linear system from the fed-back signals x and the
+reference r to the control input u::
+
+    xc[k+1] = Ac xc[k] + Bc x[k]
+    u[k]    = F r[k] - Cc xc[k] - Dc x[k]
+
+which is exactly the project's linear plant model (``fmu_src/linear``) with
+A = Ac, B = [Bc 0], C = -Cc, D = [-Dc F]; so the controller FMU is built by the same
+exporter and glue as the plants. Its inputs are named after the model's states (the plant's
+fed-back outputs) and ``r``, its output after the model's input (``V``). A static controller
+(n_xc = 0) keeps one inert state (C has no zero-size arrays): it never reaches the output.
+
+With ``delay=1`` the FMU holds each command for one sample (a state z: z[k+1] = u computed
+at k, output z), so it has no direct feedthrough and gives the same loop in any master,
+whatever order the master exchanges values in: the loop of ``timing.delay: 1``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from furuta_cosim.controllers import check_fits, load_controller
+from furuta_cosim.design.controller import discretize_controller
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.fmu.plants import LinearSpec, PlantSet
+
+REFERENCE_INPUT = "r"
+
+
+def controller_plant(name: str | Path, *, period: float | None = None, model: str | None = None,
+                     delay: int = 0) -> PlantSet:
+    """The linear 'plant' of a controller file: what the exporter builds into its FMU."""
+    from furuta_cosim.models import load_model
+
+    cfile = load_controller(name)
+    model_name = model or cfile.model
+    if not model_name:
+        raise ConfigError([f"{cfile.source}: model: missing; name the model the controller "
+                           "runs on (its states name the FMU's inputs), or give --model"])
+    try:
+        linear = load_model(model_name)
+    except ConfigError as error:
+        raise error.within(f"{cfile.source}: model") from None
+    cfile = check_fits(cfile, linear)
+    period = period or cfile.period or linear.period
+    if not period:
+        raise ConfigError([f"{cfile.source}: period: missing; a continuous controller needs the "
+                           "period it is sampled at (--period)"])
+    c = discretize_controller(cfile.controller, period)
+    F = cfile.F if cfile.F is not None else 0.0
+    n, m = c.Dc.shape[1], c.n_xc
+    A, B = c.Ac, np.hstack([c.Bc, np.zeros((m, 1))])     # xc[k+1] from [x; r]
+    C, D = -c.Cc, np.hstack([-c.Dc, [[F]]])              # u from xc and [x; r]
+    states = [f"xc{k + 1}" for k in range(m)]
+    if delay:  # z[k+1] = u[k]; the output is z
+        A = np.block([[A, np.zeros((m, 1))], [C, np.zeros((1, 1))]])
+        B = np.vstack([B, D])
+        C, D = np.hstack([np.zeros((1, m)), [[1.0]]]), np.zeros_like(D)
+        states.append("u_held")
+    elif not m:  # one inert state: C has no zero-size arrays
+        A, B, C, states = np.zeros((1, 1)), np.zeros((1, n + 1)), np.zeros((1, 1)), ["xc1"]
+    identifier = "".join(part.capitalize() for part in cfile.name.replace("_", "-").split("-")
+                         if part) or "Controller"
+    if not identifier[0].isalpha():
+        identifier = f"C{identifier}"
+    spec = LinearSpec(f"{identifier}Controller{'Delayed' if delay else ''}",
+                      f"controller {cfile.name} at {period:g} s (u = F r - Cc xc - Dc x"
+                      + (", applied one sample late)" if delay else ")"),
+                      True, float(period), 1, A.tolist(), B.tolist(), C.tolist(), D.tolist(),
+                      [*linear.states, REFERENCE_INPUT], list(linear.inputs[:1]), states,
+                      [0.0] * len(states))
+    return PlantSet(cfile.name, cfile.path or Path(cfile.name), "linear",
+                    spec.description, linear=spec)
+
+
+def export_controller(name: str | Path, output: str | Path | None = None, *,
+                      period: float | None = None, model: str | None = None, delay: int = 0,
+                      log=None) -> Path:
+    """Build the controller FMU (cached like the plants'); copy it to ``output`` when given."""
+    from furuta_cosim.fmu.exporter import build_fmu
+
+    if delay not in (0, 1):
+        raise ConfigError([f"--delay: expected 0 or 1 control samples, got {delay}"])
+    return build_fmu(controller_plant(name, period=period, model=model, delay=delay),
+                     output=output, log=log)
+
+
+def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
+    """The scenario's plant FMU and the controller's FMU connected in Ecos, no Python in the
+    loop: ``(t, {signal: values})`` at the control instants, the fed-back states and the
+    applied input (``u``). The scenario's reference must be constant (it is the FMU's ``r``),
+    and it needs no noise, disturbances, estimator or actuator limit of the master's: those
+    are the Python master's."""
+    from furuta_cosim.cosim.master import prepare
+    from furuta_cosim.fmu.check import run_ecos_connected
+
+    prepared = prepare(scenario)
+    scenario = prepared.scenario
+    unsupported = [key for key, present in (
+        ("reference (not constant)", not _constant(prepared.rbar)), ("noise", scenario.noise),
+        ("disturbances", scenario.disturbances), ("estimator", scenario.estimator),
+        ("actuator", scenario.actuator_limit), ("timing.communication_step", prepared.substeps != 1))
+        if present]
+    if unsupported:
+        raise ConfigError([f"{scenario.source}: the Ecos loop has only plant and controller; "
+                           f"this scenario needs the master for: {', '.join(unsupported)}"])
+    from fmpy import read_model_description
+
+    from furuta_cosim.fmu.exporter import build_fmu
+
+    made = controller_plant(controller, period=prepared.control_period, delay=delay)
+    fmu = build_fmu(made)
+    outputs = dict(zip(prepared.states, prepared.outputs))
+    connections = [(f"plant::{outputs[s]}", f"controller::{s}") for s in prepared.states]
+    connections.append((f"controller::{made.linear.outputs[0]}", f"plant::{prepared.control_input}"))
+    reals = {v.name for v in read_model_description(str(prepared.fmu)).modelVariables if v.type == "Real"}
+    start = {f"plant::{k}": float(v) for k, v in prepared.start.items() if k in reals}
+    start[f"controller::{REFERENCE_INPUT}"] = float(prepared.rbar[0]) if len(prepared.rbar) else 0.0
+    names = [f"plant::{outputs[s]}" for s in prepared.states] + [f"plant::{prepared.control_input}"]
+    rows = run_ecos_connected({"plant": prepared.fmu, "controller": fmu}, connections, start,
+                              names, prepared.steps, prepared.control_period)
+    signals = {s: rows[:, k] for k, s in enumerate(prepared.states)}
+    signals["u"] = rows[:, -1]
+    return prepared.t[:len(rows)], signals
+
+
+def _constant(values) -> bool:
+    return len(values) == 0 or bool(np.all(values == values[0]))

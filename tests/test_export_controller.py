@@ -1,0 +1,91 @@
+"""A controller as an FMU, and the closed loop of two FMUs in Ecos against the Python master."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from fmpy.validation import validate_fmu
+
+from furuta_cosim.cosim import evaluate, prepare
+from furuta_cosim.export import ecos_closed_loop, export_controller
+from furuta_cosim.fmu.check import ecos_available
+from furuta_cosim.fmu.session import PlantSession
+from furuta_cosim.scenario import load_scenario
+
+from conftest import run_cli
+
+# a dynamic controller whose state sees the plant (Bc != 0), unlike the published one
+DYNAMIC = """\
+name: dynamic
+type: generalized
+time: continuous
+period: 0.002
+Ac: [[-20]]
+Bc: [[0.5, 0.1, -0.3, 0.05, 0]]
+Cc: [[1.0]]
+Dc: [[-0.3105, -5.2621, 70.7488, 8.9224, 0.1772]]
+model: paper-printed
+prefilter: {output: theta0}
+"""
+
+
+def _master(scenario, controller, delay):
+    prepared = prepare(replace(load_scenario(scenario), delay=delay))
+    with PlantSession.open(prepared.fmu) as session:
+        return evaluate(prepared, session, controller)
+
+
+@pytest.mark.parametrize("delay", [0, 1])
+@pytest.mark.parametrize("controller", ["lqr-paper", "bo-paper"])
+def test_the_controller_fmu_passes_fmpy_validate(tmp_path, controller, delay):
+    path = export_controller(controller, tmp_path, delay=delay)
+    assert path.parent == tmp_path and path.suffix == ".fmu"
+    assert validate_fmu(str(path)) == []
+
+
+def test_the_cli_exports_and_names_bad_input(tmp_path, capsys):
+    code, out, _ = run_cli(capsys, "export-controller", "lqr-paper", "-o", str(tmp_path))
+    assert code == 0 and out.strip() == str(tmp_path / "LqrPaperController.fmu")
+    code, _, err = run_cli(capsys, "export-controller", "nosuch")
+    assert code == 2 and "nosuch: no such controller" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(ecos_available() is not None, reason=f"Ecos cannot run: {ecos_available()}")
+@pytest.mark.parametrize("controller", ["lqr-paper", "bo-paper", "dynamic"])
+def test_plant_and_controller_fmus_in_ecos_match_the_master_with_one_sample_delay(tmp_path, controller):
+    if controller == "dynamic":
+        (tmp_path / "dynamic.yaml").write_text(DYNAMIC)
+        controller = str(tmp_path / "dynamic.yaml")
+    t, ecos = ecos_closed_loop(load_scenario("paper-step"), controller, delay=1)
+    master = _master("paper-step", controller, delay=1)
+    assert len(t) == len(master.trace.t) == 5000
+    for name, values in ecos.items():
+        assert np.max(np.abs(values - master.trace[name])) <= 1e-9, name
+    # the loop did something, and the delay matters: without it the master differs
+    assert np.max(np.abs(master.trace["theta0"])) > 1e-3
+    plain = _master("paper-step", controller, delay=0)
+    assert np.max(np.abs(plain.trace["theta1"] - master.trace["theta1"])) > 1e-5
+
+
+def test_the_master_delay_holds_each_command_one_sample(tmp_path):
+    plain = _master("paper-step", "lqr-paper", delay=0)
+    delayed = _master("paper-step", "lqr-paper", delay=1)
+    assert delayed.trace.u[0] == 0.0
+    # the first command of the delayed loop is the undelayed loop's first (same start)
+    assert delayed.trace.u[1] == pytest.approx(plain.trace.u[0], rel=1e-12)
+
+
+def test_ecos_refuses_what_only_the_master_has(capsys):
+    from furuta_cosim.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="needs the master for: .*noise"):
+        ecos_closed_loop(load_scenario("noise"), "lqr-paper")
+
+
+@pytest.mark.parametrize("value", ["2", "-1", "true", "0.5"])
+def test_a_bad_timing_delay_is_one_line(tmp_path, capsys, value):
+    text = load_scenario("paper-step").path.read_text()
+    path = tmp_path / "s.yaml"
+    path.write_text(text.replace("  control_period: 0.002", f"  control_period: 0.002\n  delay: {value}"))
+    code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path / "o"))
+    assert code == 2 and f"{path}: timing.delay: expected 0 or 1" in err

@@ -1,0 +1,123 @@
+"""Self-contained HTML reports, checked in a real browser; the paper reproduction."""
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furuta_cosim.reproduce import reproduce
+
+from conftest import run_cli
+
+CHROMIUM, DRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+
+
+@pytest.fixture(scope="module")
+def reproduction(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("reproduction")
+    document = reproduce(folder, budget="quick", workers=2)
+    return folder, document
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """A simulate, a regress and a tune run directory, each with its report."""
+    folder = tmp_path_factory.mktemp("runs")
+    from furuta_cosim.cli import main
+
+    assert main(["simulate", "paper-step", "-o", str(folder / "simulate"), "--every", "10"]) == 0
+    assert main(["regress", "paper-step", "toy-step", "-o", str(folder / "regress"), "--workers", "1"]) == 0
+    assert main(["tune", "paper-spectral", "-o", str(folder / "tune"), "--n-calls", "12", "--workers", "1"]) == 0
+    for kind in ("simulate", "regress", "tune"):
+        assert main(["report", str(folder / kind)]) == 0
+    return folder
+
+
+def test_every_printed_number_and_claim_has_a_value_and_a_verdict(reproduction):
+    folder, document = reproduction
+    claims = document["claims"]
+    topics = " ".join(c["topic"] for c in claims)
+    for expected in ("A, linearized", "A(2,2)", "B, linearized", "K, LQR", "published BO controller stable on the printed",
+                     "calibrated plant", "toy: eig(Abar)", "toy: eig(A - BK)", "toy: prefilters",
+                     "less effort", "LQR brings the pendulum back", "BO (GP + EI"):
+        assert expected in topics, expected
+    for claim in claims:
+        assert claim["ours"] and claim["verdict"] in ("holds", "holds under a reading", "does not hold"), claim
+    verdicts = {c["topic"]: c["verdict"] for c in claims}
+    assert verdicts["A(2,2)"] == "does not hold"
+    assert verdicts["K, LQR with Q = diag(1, 10, 100, 10, 1), R = 10"] == "holds under a reading"
+    md = (folder / "reproduction.md").read_text()
+    assert md.count("\n| ") == len(claims) + 1          # header + one row per claim
+    assert "paper-readings.md" in md
+    assert {p.name for p in (folder / "figures").glob("*.svg")} >= {"paper-step.svg", "toy-step.svg",
+                                                                    "toy-sine.svg", "convergence-effort.svg"}
+
+
+def test_the_html_is_self_contained(reproduction, runs):
+    pages = [reproduction[0] / "reproduction.html"] + [runs / k / "report.html" for k in ("simulate", "regress", "tune")]
+    for path in pages:
+        text = path.read_text()
+        assert "<script" not in text.lower()
+        # nothing fetched: no external stylesheet, image or frame
+        assert not re.search(r'(src|href)="(https?:)?//', text), path
+        assert not re.search(r'<link[^>]+stylesheet', text), path
+    assert "<svg" in (runs / "simulate" / "report.html").read_text()
+
+
+def test_the_reports_say_what_they_are_about(runs):
+    simulate = (runs / "simulate" / "report.html").read_text()
+    assert "Scenario paper-step" in simulate and "FMU sha256" in simulate and "PASS" in simulate
+    regress = (runs / "regress" / "report.html").read_text()
+    assert "everything matches its baseline" in regress and "toy-classical" in regress
+    tune = (runs / "tune" / "report.html").read_text()
+    assert "Tuning paper-spectral" in tune and "seed" in tune and "Spec" in tune
+
+
+def test_report_of_a_folder_that_is_no_run_is_one_line(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "report", str(tmp_path))
+    assert code == 2 and "not a run directory" in err and len(err.strip().splitlines()) == 1
+
+
+def _browser():
+    if not (CHROMIUM.is_file() and DRIVER.is_file()):
+        pytest.skip("no browser: Debian's chromium and chromium-driver are not installed "
+                    "(.ci/run installs them)")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--window-size=1280,1600"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(options=options, service=Service(str(DRIVER)))
+
+
+@pytest.mark.parametrize("which", ["reproduction", "simulate", "tune"])
+def test_a_real_browser_opens_the_report(reproduction, runs, tmp_path, which):
+    import matplotlib.image
+
+    path = (reproduction[0] / "reproduction.html" if which == "reproduction"
+            else runs / which / "report.html")
+    driver = _browser()
+    try:
+        driver.get(path.resolve().as_uri())
+        assert driver.title.startswith("furuta-cosim")
+        errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]
+        assert errors == []
+        images = driver.execute_script(
+            "return Array.from(document.images).map(i => [i.complete, i.naturalWidth])")
+        assert all(done and width > 0 for done, width in images), images
+        figures = driver.execute_script(
+            "return Array.from(document.querySelectorAll('figure svg')).map(s => s.getBBox().width)")
+        assert figures and min(figures) > 100
+        shot = matplotlib.image.imread(io.BytesIO(driver.get_screenshot_as_png()), format="png")
+    finally:
+        driver.quit()
+    # not blank: many distinct shades, dark text on the light page
+    assert shot.shape[0] > 500 and float(np.std(shot)) > 0.02
+    assert float(np.min(shot[..., :3])) < 0.3
