@@ -19,6 +19,7 @@ whatever order the master exchanges values in: the loop of ``timing.delay: 1``.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -63,9 +64,9 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
         states.append("u_held")
     elif not m:  # one inert state: C has no zero-size arrays
         A, B, C, states = np.zeros((1, 1)), np.zeros((1, n + 1)), np.zeros((1, 1)), ["xc1"]
-    identifier = "".join(part.capitalize() for part in cfile.name.replace("_", "-").split("-")
-                         if part) or "Controller"
-    if not identifier[0].isalpha():
+    # a C identifier from the name: its alphanumeric parts, capitalized (lqr-paper: LqrPaper)
+    identifier = "".join(part.capitalize() for part in re.split(r"[^0-9A-Za-z]+", cfile.name) if part)
+    if not identifier[:1].isalpha():
         identifier = f"C{identifier}"
     spec = LinearSpec(f"{identifier}Controller{'Delayed' if delay else ''}",
                       f"controller {cfile.name} at {period:g} s (u = F r - Cc xc - Dc x"

@@ -30,7 +30,7 @@ from furuta_cosim.cosim.master import Prepared, prepare
 from furuta_cosim.cosim.result import RunResult
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import write_text
-from furuta_cosim.scenario import Scenario, load_scenario
+from furuta_cosim.scenario import Scenario, load_mapping, load_scenario
 
 FORMAT = 1
 _PLAIN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
@@ -369,8 +369,8 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
         if plant_mapping is not None:
             from dataclasses import replace
 
-            scenario = replace(scenario, mapping=plant_mapping[1],
-                               control_input=plant_mapping[0] or scenario.control_input)
+            scenario = replace(scenario, mapping=plant_mapping,
+                               control_input=plant_mapping.control_input or scenario.control_input)
         prepared = prepare(scenario, fmu=fmu, overrides=overrides)
         for compiled in scenario_controllers(prepared):
             target = baseline_path(scenario, compiled.name, baselines)
@@ -416,20 +416,19 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
 
 
 def _run_all(jobs, workers: int, progress) -> list[RunResult]:
+    """A result per job, in order: in this process one FMU session per scenario (the jobs of a
+    scenario are consecutive), else in a pool of worker processes."""
     total = len(jobs)
     if workers <= 1 or total <= 1:
         results = []
-        by_scenario: dict = {}
+        groups: dict = {}
         for prepared, compiled, _, _ in jobs:
-            by_scenario.setdefault(prepared.key, (prepared, []))[1].append(compiled)
-        done = {}
-        for prepared, compiled_list in by_scenario.values():
-            for compiled, result in zip(compiled_list, runs(prepared, compiled_list)):
-                done[(prepared.key, id(compiled))] = result
+            groups.setdefault(prepared.key, (prepared, []))[1].append(compiled)
+        for prepared, compiled in groups.values():
+            for result in runs(prepared, compiled):
+                results.append(result)
                 if progress:
-                    progress(len(done), total)
-        for prepared, compiled, _, _ in jobs:
-            results.append(done[(prepared.key, id(compiled))])
+                    progress(len(results), total)
         return results
     from furuta_cosim.cosim.worker import evaluate_here, start_pool
 
@@ -444,25 +443,6 @@ def _run_all(jobs, workers: int, progress) -> list[RunResult]:
         return results
     finally:
         pool.shutdown(cancel_futures=True)
-
-
-def load_mapping(path: str | Path):
-    """A plant-mapping file for ``--mapping``: ``control_input`` and the ``states``,
-    ``disturbances`` and ``initial`` of a scenario's ``plant.mapping``."""
-    from furuta_cosim.scenario import _mapping
-
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError([f"--mapping {path}: no such file"])
-    data = load_yaml(path)
-    check = Checker(path)
-    top = check.mapping(data, "", optional=("control_input", "states", "disturbances", "initial"))
-    control_input = None
-    if top and "control_input" in top:
-        control_input = check.string(top["control_input"], "control_input")
-    mapping = _mapping(check, {k: v for k, v in (top or {}).items() if k != "control_input"})
-    check.done()
-    return control_input, mapping
 
 
 # ---------------------------------------------------------------------------------------------

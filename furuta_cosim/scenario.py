@@ -17,6 +17,7 @@ import numpy as np
 
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
+from furuta_cosim.errors import ConfigError
 
 SIGNAL_KEYS = {
     "step": ({"time", "amplitude"}, {"initial"}),
@@ -127,6 +128,8 @@ class PlantMapping:
     states: Mapping[str, str]          # fed-back state -> FMU output
     disturbances: Mapping[str, str]    # disturbance name -> FMU input
     initial: Mapping[str, str]         # state -> FMU parameter that sets its start value
+    source: str | None = None          # a mapping file (regress --mapping), else the scenario's
+    control_input: str | None = None   # the file's control_input
 
 
 @dataclass(frozen=True)
@@ -231,6 +234,27 @@ def load_scenario(name: str | Path) -> Scenario:
                     fmu, mapping, regression, delay)
 
 
+def load_mapping(path: str | Path) -> PlantMapping:
+    """A plant-mapping file (``regress --fmu FMU --mapping FILE``): ``control_input`` and the
+    ``states``, ``disturbances`` and ``initial`` of a scenario's ``plant.mapping``. Problems
+    found later against the FMU name this file and its keys."""
+    from dataclasses import replace
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError([f"--mapping {path}: no such file"])
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", optional=("control_input", "states", "disturbances", "initial"))
+    control_input = None
+    if top and "control_input" in top:
+        control_input = check.string(top["control_input"], "control_input")
+    parts = {k: v for k, v in (top or {}).items() if k in ("states", "disturbances", "initial")}
+    mapping = _mapping(check, parts, prefix="")
+    check.done()
+    return replace(mapping, source=str(path), control_input=control_input)
+
+
 def _regression(check: Checker, value) -> Regression:
     section = check.mapping(value, "regression", optional=("rtol", "atol", "metrics", "band", "points"))
     if not section:
@@ -288,13 +312,13 @@ def _plant(check: Checker, value, folder: Path):
     return model or "", overrides, initial, control_input, fmu, mapping
 
 
-def _mapping(check: Checker, value) -> PlantMapping | None:
-    section = check.mapping(value, "plant.mapping", optional=("states", "disturbances", "initial"))
+def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapping | None:
+    section = check.mapping(value, prefix.rstrip(".") or "", optional=("states", "disturbances", "initial"))
     if section is None:
         return None
     parts = {}
     for part in ("states", "disturbances", "initial"):
-        key = f"plant.mapping.{part}"
+        key = f"{prefix}{part}"
         raw = section.get(part, {})
         entries = check.mapping(raw, key, optional=tuple(raw) if isinstance(raw, dict) else ())
         names = {}
@@ -304,10 +328,10 @@ def _mapping(check: Checker, value) -> PlantMapping | None:
                 names[str(name)] = text
         parts[part] = Frozen(names)
     if len(set(parts["states"].values())) != len(parts["states"]):
-        check.fail("plant.mapping.states", "two states map to the same FMU output")
+        check.fail(f"{prefix}states", "two states map to the same FMU output")
     for name in parts["initial"]:
         if parts["states"] and name not in parts["states"]:
-            check.fail(f"plant.mapping.initial.{name}", f"not a mapped state "
+            check.fail(f"{prefix}initial.{name}", f"not a mapped state "
                        f"(states: {', '.join(parts['states'])})")
     return PlantMapping(parts["states"], parts["disturbances"], parts["initial"])
 

@@ -159,6 +159,7 @@ def test_a_baseline_of_another_scenario_version_is_refused(tmp_path, capsys):
 @pytest.mark.parametrize("argv, expected", [
     (["paper-step", "--fmu", "missing.fmu"], "--fmu missing.fmu: no such FMU file"),
     (["--fmu", "x.fmu"], "--fmu: name the scenarios"),
+    (["paper-step", "--fmu", "x.fmu", "--mapping", "missing.yaml"], "--mapping missing.yaml: no such file"),
     (["paper-step", "--params", "C1=abc"], "--params C1=abc: expected NAME=NUMBER"),
     (["paper-step", "--params", "nosuchset"], "nosuchset"),
     (["paper-step", "--update", "--params", "C1=1e-4"], "--update writes the baselines"),
@@ -174,4 +175,20 @@ def test_an_fmu_that_does_not_fit_the_mapping_is_one_line(tmp_path, foreign_fmu,
     mapping.write_text(MAPPING.replace("pend_angle,", "pendulum_angle,"))
     line = _one_line_exit_2(capsys, "regress", "paper-step", "--fmu", str(foreign_fmu),
                             "--mapping", str(mapping))
-    assert "plant.mapping.states.theta1: ForeignPendulum has no Real output 'pendulum_angle'" in line
+    # the mapping file is at fault, not the scenario: the line names that file and its key
+    assert line.startswith(f"error: {mapping}: states.theta1: ForeignPendulum has no Real output "
+                           "'pendulum_angle'"), line
+
+
+@pytest.mark.parametrize("text, key", [
+    ("states: 3\n", "states: expected a mapping"),
+    ("states: {theta0: 5}\n", "states.theta0: expected a non-empty string"),
+    ("control_input: ''\n", "control_input: expected a non-empty string"),
+    ("extra: 1\n", "extra"),
+])
+def test_a_bad_mapping_file_is_one_line_naming_its_key(tmp_path, foreign_fmu, capsys, text, key):
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(text)
+    line = _one_line_exit_2(capsys, "regress", "paper-step", "--fmu", str(foreign_fmu),
+                            "--mapping", str(mapping))
+    assert line.startswith(f"error: {mapping}: ") and key in line, line

@@ -121,7 +121,14 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     problems: list[str] = []
 
     def fail(key: str, message: str) -> None:
-        problems.append(f"{scenario.source}: {key}: {message}")
+        mapping = scenario.mapping
+        if mapping and mapping.source and (key.startswith("plant.mapping.") or (
+                key == "plant.control_input" and mapping.control_input)):
+            # the mapping came from a file of its own: name that file and its key
+            problems.append(f"{mapping.source}: {key.removeprefix('plant.mapping.').removeprefix('plant.')}: "
+                            f"{message}")
+        else:
+            problems.append(f"{scenario.source}: {key}: {message}")
 
     plant, fmu_path = _plant(scenario, fmu)
     description = model_description(fmu_path)
