@@ -1,7 +1,7 @@
 """Where candidates are evaluated: in this process, in local worker processes, or on Dask.
 
-Every executor evaluates a batch synchronously and returns one outcome per candidate, in
-order. A worker keeps one :class:`~furuta_cosim.tuning.objective.Evaluator` per spec (its
+Every executor takes the candidates of a batch one by one (``submit``: a worker starts on it
+at once) and hands back one outcome per candidate, in order (``gather``); ``map`` does both. A worker keeps one :class:`~furuta_cosim.tuning.objective.Evaluator` per spec (its
 prepared scenarios and one FMU session per plant variant) for its whole life. A candidate
 whose evaluation raises, or whose worker dies, gets a failed outcome with the error; the run
 goes on (a dead local worker pool is started again).
@@ -34,17 +34,25 @@ def evaluate_in_worker(spec: TuningSpec, x) -> Outcome:
     return evaluator(x)
 
 
-class Serial:
-    """In this process, one after the other."""
+class _Executor:
+    def map(self, xs) -> list[Outcome]:
+        return self.gather([self.submit(x) for x in xs])
+
+
+class Serial(_Executor):
+    """In this process, one after the other (when gathered)."""
 
     name = "serial"
 
     def __init__(self, spec: TuningSpec, evaluator: Evaluator):
         self.spec, self.evaluator = spec, evaluator
 
-    def map(self, xs) -> list[Outcome]:
+    def submit(self, x):
+        return x
+
+    def gather(self, pending) -> list[Outcome]:
         outcomes = []
-        for x in xs:
+        for x in pending:
             try:
                 outcomes.append(self.evaluator(x))
             except Exception as error:  # noqa: BLE001 (a candidate's fault is recorded, not fatal)
@@ -55,7 +63,7 @@ class Serial:
         pass
 
 
-class Processes:
+class Processes(_Executor):
     """Local worker processes (default: one per core)."""
 
     name = "processes"
@@ -67,15 +75,25 @@ class Processes:
     def _start(self):
         self._pool = start_pool(self.workers)
 
-    def map(self, xs) -> list[Outcome]:
+    def submit(self, x):
         from concurrent.futures.process import BrokenProcessPool
 
         if self._pool is None:
             self._start()
-        futures = [self._pool.submit(evaluate_in_worker, self.spec, x) for x in xs]
+        try:
+            return x, self._pool.submit(evaluate_in_worker, self.spec, x)
+        except BrokenProcessPool:  # a worker died on an earlier point of the batch: run it later
+            return x, None
+
+    def gather(self, pending) -> list[Outcome]:
+        from concurrent.futures.process import BrokenProcessPool
+
+        xs = [x for x, _ in pending]
         outcomes, broken = [], []
-        for k, future in enumerate(futures):
+        for k, (_, future) in enumerate(pending):
             try:
+                if future is None:
+                    raise BrokenProcessPool("not started: the pool was broken")
                 outcomes.append(future.result())
             except BrokenProcessPool:
                 broken.append(k)
@@ -106,7 +124,7 @@ class Processes:
             self._pool = None
 
 
-class Dask:
+class Dask(_Executor):
     """A Dask cluster: an existing scheduler's address, or ``local`` for a LocalCluster."""
 
     name = "dask"
@@ -127,10 +145,12 @@ class Dask:
             self._cluster = None
             self._client = Client(address, timeout="30s")
 
-    def map(self, xs) -> list[Outcome]:
-        futures = [self._client.submit(evaluate_in_worker, self.spec, list(x), pure=False) for x in xs]
+    def submit(self, x):
+        return self._client.submit(evaluate_in_worker, self.spec, list(x), pure=False)
+
+    def gather(self, pending) -> list[Outcome]:
         outcomes = []
-        for future in futures:
+        for future in pending:
             try:
                 outcomes.append(future.result())
             except Exception as error:  # noqa: BLE001 (KilledWorker included)

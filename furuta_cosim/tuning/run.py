@@ -8,8 +8,9 @@
       convergence.png  (and .svg) best objective against evaluations
       summary.json     best, baselines scored alike, counts; summary.md the same in words
 
-This first version evaluates in the calling process, one candidate at a time (``bo``: GP +
-Expected Improvement; ``random``: the same space drawn at random, with the same history).
+Candidates come in synchronous batches (``bo``: GP + Expected Improvement, tuning/optimizers.py;
+``random``: the same space drawn at random; ``de``: scipy's differential evolution), each
+point of a batch sent to an executor (tuning/executors.py) as soon as it is known.
 """
 
 from __future__ import annotations
@@ -29,52 +30,6 @@ from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import TuningSpec
 
 METHODS = ("bo", "random", "de")
-# Expected Improvement maximized from the best of this many sampled points by this many L-BFGS
-# starts (scikit-optimize's defaults: 10,000 and 5; tools/bench_tune.py compares)
-ACQUISITION = {"n_points": 2000, "n_restarts_optimizer": 2}
-
-
-def _optimizer(spec: TuningSpec, evaluator: Evaluator, method: str, seed: int):
-    from skopt import Optimizer
-
-    settings = spec.optimizer
-    if method == "random":
-        return _Random(evaluator.space.dimensions(), seed)
-    from skopt.utils import cook_estimator
-
-    dimensions = evaluator.space.dimensions()
-    # scikit-optimize's GP with its default settings spends most of a run refitting kernel
-    # hyperparameters from three starts at every tell; a fit from one start every fifth tell
-    # (warm: from the last kernel; conditioning only in between), a fixed tiny noise (the
-    # objective is deterministic) and EI maximized from 2,000 sampled points and 2 L-BFGS
-    # starts cost a fraction
-    # (tools/bench_tune.py measures both)
-    from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
-
-    kernel = cook_estimator("GP", space=dimensions, random_state=seed).kernel
-    gp = WarmGaussianProcess(kernel, random_state=seed, noise="gaussian", refit_every=5, memory=Memory())
-    return Optimizer(dimensions, base_estimator=gp, acq_func="EI",
-                     acq_func_kwargs={"xi": settings.xi}, n_initial_points=settings.n_initial_points,
-                     acq_optimizer="lbfgs", acq_optimizer_kwargs=dict(ACQUISITION),
-                     random_state=seed)
-
-
-class _Random:
-    """Uniform draws from the same space, with the optimizer's ask/tell (skopt's own "dummy"
-    estimator does not run with current scikit-learn)."""
-
-    def __init__(self, dimensions, seed: int):
-        from skopt.space import Space
-
-        self._space, self._rng = Space(dimensions), np.random.RandomState(seed)
-
-    def ask(self, n_points=None):
-        if n_points is None:
-            return self._space.rvs(1, random_state=self._rng)[0]
-        return self._space.rvs(n_points, random_state=self._rng)
-
-    def tell(self, x, y) -> None:
-        pass
 
 
 def _json_safe(value):
@@ -238,8 +193,13 @@ def _report(progress, history: _History, n_calls: int) -> None:
 
 
 def _evaluate(executor, evaluator, history: _History, xs, clock) -> list[float]:
+    return _collect(executor, evaluator, history, xs, [executor.submit(x) for x in xs], clock)
+
+
+def _collect(executor, evaluator, history: _History, xs, pending, clock) -> list[float]:
+    """Wait for a batch's outcomes (the evaluation clock: time spent waiting), record them."""
     started = time.perf_counter()
-    outcomes = executor.map(xs)
+    outcomes = executor.gather(pending)
     clock["evaluation"] += time.perf_counter() - started
     names = evaluator.space.names
     for x, outcome in zip(xs, outcomes):
@@ -248,21 +208,27 @@ def _evaluate(executor, evaluator, history: _History, xs, clock) -> list[float]:
 
 
 def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock, progress):
-    optimizer = _optimizer(spec, evaluator, method, seed)
+    from furuta_cosim.tuning.optimizers import make
+
+    settings = spec.optimizer
+    optimizer = make(evaluator.space.dimensions(), method, seed, xi=settings.xi,
+                     n_initial_points=settings.n_initial_points)
     if history.records:
-        if method == "random":
-            for _ in history.records:
-                optimizer.ask()  # the same draws again: the generator goes on where it was
-        else:
-            optimizer.tell([r["x"] for r in history.records], [r["objective"] for r in history.records])
+        optimizer.replay([r["x"] for r in history.records], [r["objective"] for r in history.records])
     while len(history.records) < n_calls:
-        count = min(batch, n_calls - len(history.records))
+        xs, pending, points = [], [], None
+        while True:  # each point goes out while the next one is computed
+            started = time.perf_counter()
+            points = points or optimizer.batch(min(batch, n_calls - len(history.records)))
+            x = next(points, None)
+            clock["optimizer"] += time.perf_counter() - started
+            if x is None:
+                break
+            xs.append(x)
+            pending.append(executor.submit(x))
+        ys = _collect(executor, evaluator, history, xs, pending, clock)
         started = time.perf_counter()
-        xs = optimizer.ask(count) if count > 1 else [optimizer.ask()]
-        clock["optimizer"] += time.perf_counter() - started
-        ys = _evaluate(executor, evaluator, history, xs, clock)
-        started = time.perf_counter()
-        optimizer.tell(xs, ys) if count > 1 else optimizer.tell(xs[0], ys[0])
+        optimizer.tell(xs, ys)
         clock["optimizer"] += time.perf_counter() - started
         _report(progress, history, n_calls)
 
