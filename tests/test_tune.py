@@ -254,6 +254,13 @@ def test_effort_says_plainly_whether_it_beat_the_lqr(tmp_path):
     for label in ("paper-tracking", "sine", "noise"):
         ise = best["metrics"][label]["error.ISE"] / lqr["metrics"][label]["error.ISE"]
         assert ise <= 1.05 * (1 + 1e-12), (label, ise)  # tracking no worse than +5 %
+    # run by run, where it uses less voltage than the LQR and where not, in so many words
+    lower = next(line for line in summary.splitlines() if line.startswith("  - lower than lqr-paper"))
+    higher = next(line for line in summary.splitlines() if line.startswith("  - not lower on:"))
+    for label in ("paper-tracking", "sine", "noise"):
+        ratios = [best["metrics"][label][m] / lqr["metrics"][label][m] for m in ("u.rms", "u.peak_abs")]
+        assert label in (lower if max(ratios) < 1 else higher), (label, ratios)
+        assert f"u.rms {(ratios[0] - 1) * 100:+.1f} %" in (lower if max(ratios) < 1 else higher)
     if best["objective"] < lqr["objective"]:
         assert "the tuned controller scores better" in summary
     else:

@@ -342,7 +342,7 @@ def _markdown(spec: TuningSpec, document: dict) -> str:
                 if document["objective"] == "spectral" else
                 " = " + " + ".join(f"{t.weight:g} {t.metric}" for t in spec.objective.terms)
                 + f", {spec.objective.aggregate} over scenarios and plant variants"),
-             f"- time: optimizer {document['optimizer_seconds']:.1f} s, evaluations "
+             f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
              f"{document['evaluation_seconds']:.1f} s", ""]
     best = document["best"]
     if best:
@@ -358,6 +358,8 @@ def _markdown(spec: TuningSpec, document: dict) -> str:
                       else f" - the tuned controller does NOT beat it (worse by "
                            f"{(best['objective'] / baseline['objective'] - 1) * 100:.1f} %)")
         lines.append(f"- {name}, scored alike: {verdict}{better}")
+        if best and baseline["feasible"] and best.get("metrics") and baseline.get("metrics"):
+            lines += _run_by_run(spec, best["metrics"], baseline["metrics"], name)
     if best and best.get("metrics"):
         lines += ["", "Metric by metric, on every scenario and plant variant:", ""]
         keys = list(dict.fromkeys([t.metric for t in spec.objective.terms]
@@ -376,6 +378,23 @@ def _markdown(spec: TuningSpec, document: dict) -> str:
                 shown = [_cell(v) for v in [value] + others]
                 lines.append(f"| {label} | {key} | " + " | ".join(shown) + f" | {ratio} |")
     return "\n".join(lines) + "\n"
+
+
+def _run_by_run(spec: TuningSpec, tuned: dict, baseline: dict, name: str) -> list[str]:
+    """Where the tuned controller is lower and where higher than a baseline, run by run, in the
+    objective's own metrics: a lower mean can hide runs on which it is worse."""
+    lower, higher = [], []
+    for label, values in tuned.items():
+        changes = []
+        for term in spec.objective.terms:
+            ours, theirs = values.get(term.metric), baseline.get(label, {}).get(term.metric)
+            if ours is not None and theirs:
+                changes.append((term.metric, (ours / theirs - 1) * 100))
+        if changes:
+            text = f"{label} (" + ", ".join(f"{metric} {change:+.1f} %" for metric, change in changes) + ")"
+            (lower if all(change < 0 for _, change in changes) else higher).append(text)
+    return [f"  - lower than {name} in every objective metric on: " + ("; ".join(lower) or "no run"),
+            f"  - not lower on: " + ("; ".join(higher) or "no run")]
 
 
 def _cell(value) -> str:
