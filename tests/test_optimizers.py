@@ -60,8 +60,9 @@ def test_the_array_space_draws_and_transforms_like_scikit_optimizes():
         ours.transform([[5.0, 0.0, 0.0]])                # out of bounds, as scikit-optimize says
 
 
-def told(n_points=12, seed=0, n_initial_points=5):
-    optimizer = optimizers.make(DIMENSIONS, "bo", seed, xi=0.01, n_initial_points=n_initial_points)
+def told(n_points=12, seed=0, n_initial_points=5, **options):
+    optimizer = optimizers.make(DIMENSIONS, "bo", seed, xi=0.01, n_initial_points=n_initial_points,
+                                **options)
     xs = Space(DIMENSIONS).rvs(n_points, random_state=seed + 100)
     optimizer.tell(xs, [objective(x) for x in xs])
     return optimizer
@@ -84,6 +85,29 @@ def test_a_batch_leaves_the_optimizer_as_it_was():
     assert list(told().batch(3)) == points
     optimizer.tell(points, [objective(x) for x in points])
     assert len(optimizer.Xi) == 15 and optimizer.memory.fits == before[-1] + 1
+
+
+@pytest.mark.parametrize("restarts", [0, 2])
+def test_hyperparameter_refits_start_from_the_last_kernel_and_gp_restarts_more(monkeypatch, restarts):
+    from furuta_cosim.tuning.gp import WarmGaussianProcess
+
+    starts, found = [], []
+    real = WarmGaussianProcess._constrained_optimization
+
+    def counted(self, *args):
+        starts.append(args[1])                    # the initial hyperparameters
+        found.append(real(self, *args))           # (hyperparameters, negative log likelihood)
+        return found[-1]
+
+    monkeypatch.setattr(WarmGaussianProcess, "_constrained_optimization", counted)
+    optimizer = told(gp_restarts=restarts)        # the first fit: from the prior kernel + restarts
+    assert len(starts) == 1 + restarts
+    fitted = min(found, key=lambda result: result[1])[0]
+    for k in range(optimizers.REFIT_EVERY):       # conditioning only, then one refit
+        xs = Space(DIMENSIONS).rvs(1, random_state=k)
+        optimizer.tell(xs, [objective(x) for x in xs])
+    assert len(starts) == 2 * (1 + restarts)
+    assert np.allclose(starts[1 + restarts], fitted)   # the refit's first start: the last kernel
 
 
 def test_a_batch_across_the_end_of_the_random_start():

@@ -97,6 +97,7 @@ def edit(data, keys, value):
     (("optimizer", "n_initial_points"), 500, "optimizer.n_initial_points"),
     (("optimizer", "method"), "annealing", "optimizer.method"),
     (("optimizer", "n_calls"), 0, "optimizer.n_calls"),
+    (("optimizer", "gp_restarts"), 1.5, "optimizer.gp_restarts"),
     (("constraints", "stability_margin"), -1, "constraints.stability_margin"),
     (("constraints", "controller_stable"), "yes", "constraints.controller_stable"),
     (("variants",), [{"C1": "x"}], "variants[0].C1"),

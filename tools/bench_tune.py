@@ -32,7 +32,7 @@ optimizers_make = optimizers.make
 class SkoptDefaults:
     """scikit-optimize's own GP set-up (and its ask(n) for batches), for comparison."""
 
-    def __init__(self, dimensions, method, seed, *, xi, n_initial_points):
+    def __init__(self, dimensions, method, seed, *, xi, n_initial_points, **ours):
         from skopt import Optimizer
 
         self.optimizer = Optimizer(dimensions, base_estimator="GP", acq_func="EI",

@@ -29,7 +29,8 @@ from sklearn.utils import check_random_state
 # Expected Improvement maximized from the best of this many sampled points by this many L-BFGS
 # starts (scikit-optimize's defaults: 10,000 and 5; tools/bench_tune.py compares)
 ACQUISITION = {"n_points": 2000, "n_restarts_optimizer": 2}
-# the GP's kernel hyperparameters are fitted at every this many tells (conditioning between)
+# the GP's kernel hyperparameters are fitted at every this many tells (conditioning between),
+# from the last kernel and a spec's ``optimizer.gp_restarts`` random starts besides
 REFIT_EVERY = 5
 
 _UNSET = object()
@@ -109,8 +110,9 @@ class RandomSearch:
             self._space.rvs(1, random_state=self._rng)
 
 
-def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int):
-    """The optimizer of ``method`` (``bo`` or ``random``) over ``dimensions``."""
+def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int, gp_restarts: int = 2):
+    """The optimizer of ``method`` (``bo`` or ``random``) over ``dimensions``; ``gp_restarts``:
+    random starts, besides the last kernel, of each hyperparameter refit."""
     if method == "random":
         return RandomSearch(dimensions, seed)
     from skopt.utils import cook_estimator
@@ -118,14 +120,14 @@ def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int
     from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
 
     # scikit-optimize's GP with its default settings spends most of a run refitting kernel
-    # hyperparameters from three starts at every tell; a fit from one start every fifth tell
-    # (warm: from the last kernel; conditioning only in between), its noise level fitted, and
-    # EI maximized from 2,000 sampled points and 2 L-BFGS starts cost a fraction
-    # (tools/bench_tune.py measures both)
+    # hyperparameters from three starts at every tell; a fit every fifth tell (from the last
+    # kernel and gp_restarts random starts; conditioning only in between), its noise level
+    # fitted, and EI maximized from 2,000 sampled points and 2 L-BFGS starts cost a fraction
+    # (tools/bench_tune.py measures against the defaults)
     memory = Memory()
     kernel = cook_estimator("GP", space=dimensions, random_state=seed).kernel
     gp = WarmGaussianProcess(kernel, random_state=seed, noise="gaussian", refit_every=REFIT_EVERY,
-                             memory=memory)
+                             n_restarts_optimizer=gp_restarts, memory=memory)
     return BayesOptimizer(dimensions, memory=memory, base_estimator=gp, acq_func="EI",
                           acq_func_kwargs={"xi": xi}, n_initial_points=n_initial_points,
                           acq_optimizer="lbfgs", acq_optimizer_kwargs=dict(ACQUISITION),

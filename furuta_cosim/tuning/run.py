@@ -212,7 +212,7 @@ def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, 
 
     settings = spec.optimizer
     optimizer = make(evaluator.space.dimensions(), method, seed, xi=settings.xi,
-                     n_initial_points=settings.n_initial_points)
+                     n_initial_points=settings.n_initial_points, gp_restarts=settings.gp_restarts)
     if history.records:
         optimizer.replay([r["x"] for r in history.records], [r["objective"] for r in history.records])
     while len(history.records) < n_calls:

@@ -62,6 +62,7 @@ class OptimizerSettings:
     xi: float = 0.01
     seed: int = 0
     batch: int = 1
+    gp_restarts: int = 2
 
 
 @dataclass(frozen=True)
@@ -280,7 +281,7 @@ def _constraints(check: Checker, value) -> Constraints:
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
     section = check.mapping(value, "optimizer", optional=("method", "n_calls", "n_initial_points",
-                                                          "xi", "seed", "batch"))
+                                                          "xi", "seed", "batch", "gp_restarts"))
     if section is None:
         return None
     method = check.string(section.get("method", "bo"), "optimizer.method", METHODS)
@@ -290,9 +291,11 @@ def _optimizer(check: Checker, value) -> OptimizerSettings | None:
     xi = check.number(section.get("xi", 0.01), "optimizer.xi", minimum=0.0)
     seed = check.number(section.get("seed", 0), "optimizer.seed", integer=True, minimum=0)
     batch = check.number(section.get("batch", 1), "optimizer.batch", integer=True, minimum=1)
-    if None in (method, n_calls, initial, xi, seed, batch):
+    restarts = check.number(section.get("gp_restarts", 2), "optimizer.gp_restarts", integer=True,
+                            minimum=0)
+    if None in (method, n_calls, initial, xi, seed, batch, restarts):
         return None
-    return OptimizerSettings(method, n_calls, initial, xi, seed, batch)
+    return OptimizerSettings(method, n_calls, initial, xi, seed, batch, restarts)
 
 
 def _variants(check: Checker, value) -> tuple:
