@@ -148,3 +148,19 @@ def test_each_point_of_a_batch_is_sent_before_the_next_is_computed(tmp_path, mon
     assert events == (["submit", "tell", "submit", "gather", "tell"]
                       + ["submit", "tell", "submit", "gather", "fit"]
                       + ["submit", "fit", "submit", "gather", "fit"] * 2)
+
+
+def test_the_optimizer_runs_on_one_blas_thread_serial_too(tmp_path, monkeypatch):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    seen = []
+    real_tell = optimizers.BayesOptimizer.tell
+
+    def tell(self, xs, ys):
+        seen.extend(pool["num_threads"] for pool in threadpool_info())
+        return real_tell(self, xs, ys)
+
+    monkeypatch.setattr(optimizers.BayesOptimizer, "tell", tell)
+    with threadpool_limits(2):                   # whatever the caller allows
+        run.tune(load_spec("paper-spectral"), tmp_path / "run", n_calls=12)
+    assert seen and set(seen) == {1}

@@ -172,8 +172,11 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
     batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
     clock = {"optimizer": 0.0, "evaluation": 0.0}
     try:
-        # one BLAS thread for the optimizer too: the workers use the other cores
-        with threadpool_limits(1 if (workers > 1 or dask) else None):
+        # one BLAS thread for the optimizer, serial too: with workers they use the other cores;
+        # alone, at a GP's sizes (150 points), a second thread made each iteration twice as
+        # slow (tools/bench_tune.py, paper-spectral), and splitting BLAS reductions over
+        # threads rounds differently, so a seed's history would depend on the core count
+        with threadpool_limits(1):
             if method == "de":
                 _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch,
                                         clock, progress)
