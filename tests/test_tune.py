@@ -77,6 +77,8 @@ def edit(data, keys, value):
     (("parameters", "Bc"), {"box": [1, -1]}, "parameters.Bc.box"),
     (("parameters", "Zc"), {"box": [0, 1]}, "parameters.Zc"),
     (("parameters", "Ac"), {"log": [-1]}, "parameters.Ac.log"),
+    (("parameters", "Ac"), {"log": [-100, 100]}, "parameters.Ac.log"),   # values through 0
+    (("parameters", "Dc"), {"lqr": [-2, 30]}, "parameters.Dc.lqr"),
     (("parameters", "Ac"), {"log": [-1, 2], "sign": 2}, "parameters.Ac.sign"),
     (("parameters", "Bc"), {"lqr": [-1, 2]}, "parameters.Bc"),
     (("parameters", "Dc"), None, "parameters.Dc"),

@@ -54,6 +54,10 @@ class Constraints:
     no_worse_than: tuple[tuple[str, float], ...] = ()   # times these factors bound the candidate's
 
 
+# log and lqr bounds are exponents of 10, at most this large in magnitude
+MAX_DECADES = 12
+
+
 @dataclass(frozen=True)
 class OptimizerSettings:
     method: str = "bo"
@@ -176,6 +180,12 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | N
     low, high = bounds
     if not low < high:
         check.fail(f"{where}.{kind}", f"expected [low, high] with low < high, got {bounds}")
+        return None
+    if kind in ("log", "lqr") and max(abs(low), abs(high)) > MAX_DECADES:
+        # the bounds are exponents: [-50, 50] is most likely a range of values through 0
+        check.fail(f"{where}.{kind}", f"expected exponents of 10 within +-{MAX_DECADES} ([-1, 2]: "
+                                      f"0.1 to 100), got {bounds}; a range of values through 0 has "
+                                      f"no log scale: use box")
         return None
     sign, R, entries = 1.0, 1.0, None
     if kind == "log":
