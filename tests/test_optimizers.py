@@ -12,7 +12,7 @@ from skopt.utils import cook_estimator
 from furuta_cosim.tuning import optimizers, run
 from furuta_cosim.tuning.executors import Serial
 from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
-from furuta_cosim.tuning.spec import load_spec
+from furuta_cosim.tuning.spec import OptimizerSettings, load_spec
 
 DIMENSIONS = [Real(-1.0, 2.0, name="a"), Real(-3.0, 3.0, name="b"), Real(0.0, 1.0, name="c")]
 
@@ -60,9 +60,9 @@ def test_the_array_space_draws_and_transforms_like_scikit_optimizes():
         ours.transform([[5.0, 0.0, 0.0]])                # out of bounds, as scikit-optimize says
 
 
-def told(n_points=12, seed=0, n_initial_points=5, **options):
+def told(n_points=12, seed=0, n_initial_points=5, gp_restarts=OptimizerSettings.gp_restarts):
     optimizer = optimizers.make(DIMENSIONS, "bo", seed, xi=0.01, n_initial_points=n_initial_points,
-                                **options)
+                                gp_restarts=gp_restarts)
     xs = Space(DIMENSIONS).rvs(n_points, random_state=seed + 100)
     optimizer.tell(xs, [objective(x) for x in xs])
     return optimizer

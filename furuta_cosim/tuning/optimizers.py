@@ -110,7 +110,7 @@ class RandomSearch:
             self._space.rvs(1, random_state=self._rng)
 
 
-def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int, gp_restarts: int = 2):
+def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int, gp_restarts: int):
     """The optimizer of ``method`` (``bo`` or ``random``) over ``dimensions``; ``gp_restarts``:
     random starts, besides the last kernel, of each hyperparameter refit."""
     if method == "random":

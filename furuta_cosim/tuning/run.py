@@ -397,7 +397,7 @@ def _run_by_run(spec: TuningSpec, tuned: dict, baseline: dict, name: str) -> lis
             text = f"{label} (" + ", ".join(f"{metric} {change:+.1f} %" for metric, change in changes) + ")"
             (lower if all(change < 0 for _, change in changes) else higher).append(text)
     return [f"  - lower than {name} in every objective metric on: " + ("; ".join(lower) or "no run"),
-            f"  - not lower on: " + ("; ".join(higher) or "no run")]
+            "  - not lower on: " + ("; ".join(higher) or "no run")]
 
 
 def _cell(value) -> str:

@@ -289,23 +289,26 @@ def _constraints(check: Checker, value) -> Constraints:
                        flags["requirements"], penalty or 1.0e3, baseline, factors)
 
 
+# the optimizer's numeric settings and their checks (the defaults: OptimizerSettings)
+_OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1),
+                      "n_initial_points": dict(integer=True, minimum=1),
+                      "xi": dict(minimum=0.0),
+                      "seed": dict(integer=True, minimum=0),
+                      "batch": dict(integer=True, minimum=1),
+                      "gp_restarts": dict(integer=True, minimum=0)}
+
+
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
-    section = check.mapping(value, "optimizer", optional=("method", "n_calls", "n_initial_points",
-                                                          "xi", "seed", "batch", "gp_restarts"))
+    defaults = OptimizerSettings()
+    section = check.mapping(value, "optimizer", optional=("method", *_OPTIMIZER_NUMBERS))
     if section is None:
         return None
-    method = check.string(section.get("method", "bo"), "optimizer.method", METHODS)
-    n_calls = check.number(section.get("n_calls", 150), "optimizer.n_calls", integer=True, minimum=1)
-    initial = check.number(section.get("n_initial_points", 10), "optimizer.n_initial_points",
-                           integer=True, minimum=1)
-    xi = check.number(section.get("xi", 0.01), "optimizer.xi", minimum=0.0)
-    seed = check.number(section.get("seed", 0), "optimizer.seed", integer=True, minimum=0)
-    batch = check.number(section.get("batch", 1), "optimizer.batch", integer=True, minimum=1)
-    restarts = check.number(section.get("gp_restarts", 2), "optimizer.gp_restarts", integer=True,
-                            minimum=0)
-    if None in (method, n_calls, initial, xi, seed, batch, restarts):
+    values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", METHODS)}
+    for key, rules in _OPTIMIZER_NUMBERS.items():
+        values[key] = check.number(section.get(key, getattr(defaults, key)), f"optimizer.{key}", **rules)
+    if None in values.values():
         return None
-    return OptimizerSettings(method, n_calls, initial, xi, seed, batch, restarts)
+    return OptimizerSettings(**values)
 
 
 def _variants(check: Checker, value) -> tuple:
