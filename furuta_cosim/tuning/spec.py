@@ -183,9 +183,10 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | N
         return None
     if kind in ("log", "lqr") and max(abs(low), abs(high)) > MAX_DECADES:
         # the bounds are exponents: [-50, 50] is most likely a range of values through 0
+        hint = ("a range of values through 0 has no log scale: use box" if kind == "log"
+                else "the state weights are 10^q")
         check.fail(f"{where}.{kind}", f"expected exponents of 10 within +-{MAX_DECADES} ([-1, 2]: "
-                                      f"0.1 to 100), got {bounds}; a range of values through 0 has "
-                                      f"no log scale: use box")
+                                      f"0.1 to 100), got {bounds}; {hint}")
         return None
     sign, R, entries = 1.0, 1.0, None
     if kind == "log":
