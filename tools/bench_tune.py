@@ -1,6 +1,7 @@
 """What a tuning run costs and what each optimizer finds, measured in one run.
 
-    python tools/bench_tune.py [--seeds 5] [--calls 150] [--skip-default]
+    python tools/bench_tune.py [--seeds 5] [--calls 150] [--skip-default] [--only spectral|effort]
+                               [--gp-restarts N] [--ei-starts N] [--blas-threads N] [--effort-seeds N]
 
 - paper-spectral (12 parameters), serial: wall time split into optimizer and evaluation
   time, optimizer seconds per iteration (median, last and mean), for our GP configuration and for
@@ -8,17 +9,24 @@
 - best objective over the seeds for bo, bo with skopt's defaults, random and de at the same
   budget, and de with 2,000 evaluations;
 - effort (150 calls, 3 scenarios): wall time with 1 worker and with 2, and the speed-up; and
-  with 2 workers but scikit-optimize's ask(n) for the batches instead of ours.
+  with 2 workers but scikit-optimize's ask(n) for the batches instead of ours; with
+  --effort-seeds N, the 2-worker run over seeds 0..N-1 (wall time and best of each).
+
+The levers, one at a time, against our settings: --gp-restarts (random starts of the GP's
+refits, instead of each spec's optimizer.gp_restarts), --ei-starts (L-BFGS starts maximizing
+EI), --blas-threads (the optimizer's BLAS threads in the serial paper-spectral runs).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from furuta_cosim.tuning import optimizers
@@ -62,19 +70,14 @@ def skopt_batches(dimensions, method, seed, **settings):
     return optimizer
 
 
+@contextmanager
 def patched(make):
-    """tuning runs with optimizers made by ``make`` (a context manager)."""
-    from contextlib import contextmanager
-
-    @contextmanager
-    def scope():
-        optimizers.make = make
-        try:
-            yield
-        finally:
-            optimizers.make = optimizers_make
-
-    return scope()
+    """tuning runs with optimizers made by ``make``."""
+    optimizers.make = make
+    try:
+        yield
+    finally:
+        optimizers.make = optimizers_make
 
 
 def timed_run(spec, folder, **options) -> tuple[dict, list[float], float]:
@@ -100,14 +103,55 @@ def timed_run(spec, folder, **options) -> tuple[dict, list[float], float]:
         tuning._ask_tell = original
 
 
+@contextmanager
+def blas_threads(count: int | None):
+    """tuning runs whose optimizer uses ``count`` BLAS threads instead of one (serial runs only:
+    the patch would reach forked workers too)."""
+    import threadpoolctl
+
+    original = threadpoolctl.threadpool_limits
+    if count is not None:
+        threadpoolctl.threadpool_limits = lambda limits=None, user_api=None: original(count, user_api)
+    try:
+        yield
+    finally:
+        threadpoolctl.threadpool_limits = original
+
+
+def with_restarts(spec, restarts: int | None):
+    """``spec`` with ``restarts`` random starts of the GP's refits (None: as the spec says)."""
+    if restarts is None:
+        return spec
+    return dataclasses.replace(spec, optimizer=dataclasses.replace(spec.optimizer, gp_restarts=restarts))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--calls", type=int, default=150)
     parser.add_argument("--skip-default", action="store_true", help="leave out skopt's defaults (slow)")
+    parser.add_argument("--only", choices=("spectral", "effort"), help="run one of the two parts")
+    parser.add_argument("--gp-restarts", type=int, help="random starts of each GP refit (default: the spec's)")
+    parser.add_argument("--ei-starts", type=int, help="L-BFGS starts maximizing EI (default: "
+                        f"{optimizers.ACQUISITION['n_restarts_optimizer']})")
+    parser.add_argument("--blas-threads", type=int, help="the optimizer's BLAS threads in paper-spectral (default 1)")
+    parser.add_argument("--effort-seeds", type=int, default=1, help="seeds of the 2-worker effort run")
     args = parser.parse_args()
-    spectral = load_spec("paper-spectral")
+    if args.ei_starts is not None:
+        optimizers.ACQUISITION["n_restarts_optimizer"] = args.ei_starts
+    print(f"settings: gp_restarts {args.gp_restarts if args.gp_restarts is not None else 'as each spec'}, "
+          f"EI {optimizers.ACQUISITION}, optimizer BLAS threads {args.blas_threads or 1}")
     work = Path(tempfile.mkdtemp(prefix="bench-tune-"))
+    if args.only != "effort":
+        with blas_threads(args.blas_threads):
+            spectral_part(args, with_restarts(load_spec("paper-spectral"), args.gp_restarts), work)
+    if args.only != "spectral":
+        effort_part(args, with_restarts(load_spec("effort"), args.gp_restarts), work)
+    print(json.dumps({"work": str(work)}), file=sys.stderr)
+    return 0
+
+
+def spectral_part(args, spectral, work: Path) -> None:
     rows, best = [], {}
     methods = ["bo", "random", "de"] + ([] if args.skip_default else ["bo-skopt-defaults"])
     for method in methods:
@@ -139,7 +183,8 @@ def main() -> int:
               + (f"   median {statistics.median(found):.3f}" if found else ""))
     print(f"{'de, 2000 evaluations':20s} {de_long['best']['objective']:9.3f}   ({de_wall:.1f} s)")
 
-    effort = load_spec("effort")
+
+def effort_part(args, effort, work: Path) -> None:
     one_doc, _, one = timed_run(effort, work / "effort-1", n_calls=args.calls, workers=1)
     two_doc, _, two = timed_run(effort, work / "effort-2", n_calls=args.calls, workers=2)
     with patched(skopt_batches):
@@ -151,8 +196,15 @@ def main() -> int:
         found = document["best"]["objective"] if document["best"] else float("nan")
         print(f"{label:36s} {wall:8.1f} {document['optimizer_seconds']:12.1f} "
               f"{document['evaluation_seconds']:10.1f} {one / wall:11.2f}x {found:9.4f}")
-    print(json.dumps({"work": str(work)}), file=sys.stderr)
-    return 0
+    if args.effort_seeds > 1:
+        print(f"\neffort, {args.calls} calls, 2 workers, seeds 0..{args.effort_seeds - 1}")
+        results = []
+        for seed in range(args.effort_seeds):
+            document, _, wall = (two_doc, None, two) if seed == 0 else timed_run(
+                effort, work / f"effort-2-{seed}", n_calls=args.calls, workers=2, seed=seed)
+            results.append(document["best"]["objective"] if document["best"] else float("nan"))
+            print(f"seed {seed}: {wall:6.1f} s, best {results[-1]:.4f}", flush=True)
+        print(f"median best {statistics.median(results):.4f}")
 
 
 if __name__ == "__main__":
