@@ -1,7 +1,7 @@
 """What a tuning run costs and what each optimizer finds, measured in one run.
 
     python tools/bench_tune.py [--seeds 5] [--calls 150] [--skip-default] [--only spectral|effort]
-                               [--gp-restarts N] [--ei-starts N] [--blas-threads N] [--effort-seeds N]
+                               [--lever NAME=VALUE ...] [--effort-seeds N]
 
 - paper-spectral (12 parameters), serial: wall time split into optimizer and evaluation
   time, optimizer seconds per iteration (median, last and mean), for our GP configuration and for
@@ -10,23 +10,23 @@
   budget, and de with 2,000 evaluations;
 - effort (150 calls, 3 scenarios): wall time with 1 worker and with 2, and the speed-up; and
   with 2 workers but scikit-optimize's ask(n) for the batches instead of ours; with
-  --effort-seeds N, the 2-worker run over seeds 0..N-1 (wall time and best of each).
+  --effort-seeds N, each 2-worker run over seeds 0..N-1 (wall time and best of each).
 
-The levers, one at a time, against our settings: --gp-restarts (random starts of the GP's
-refits, instead of each spec's optimizer.gp_restarts), --ei-starts (L-BFGS starts maximizing
-EI), --blas-threads (the optimizer's BLAS threads in the serial paper-spectral runs).
+``--lever NAME=VALUE`` (repeatable) adds a row of bo with our settings but that one, measured in
+the same run as ours: ``gp_restarts`` (random starts of each GP refit, instead of the spec's
+optimizer.gp_restarts), ``ei_starts`` (L-BFGS starts maximizing EI) and ``blas_threads`` (the
+optimizer's BLAS threads; paper-spectral only, where no worker would inherit the patch).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import statistics
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 from furuta_cosim.tuning import optimizers
@@ -35,6 +35,7 @@ from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
 optimizers_make = optimizers.make
+LEVERS = ("gp_restarts", "ei_starts", "blas_threads")
 
 
 class SkoptDefaults:
@@ -80,6 +81,38 @@ def patched(make):
         optimizers.make = optimizers_make
 
 
+@contextmanager
+def lever(name: str, value: int):
+    """tuning runs with our settings except ``name`` = ``value``."""
+    if name == "gp_restarts":
+        with patched(lambda *args, **settings: optimizers_make(*args, **{**settings, "gp_restarts": value})):
+            yield
+    elif name == "ei_starts":
+        before = optimizers.ACQUISITION["n_restarts_optimizer"]
+        optimizers.ACQUISITION["n_restarts_optimizer"] = value
+        try:
+            yield
+        finally:
+            optimizers.ACQUISITION["n_restarts_optimizer"] = before
+    else:                                   # blas_threads: run.py's threadpool_limits(1), widened
+        import threadpoolctl
+
+        original = threadpoolctl.threadpool_limits
+        threadpoolctl.threadpool_limits = lambda limits=None, user_api=None: original(value, user_api)
+        try:
+            yield
+        finally:
+            threadpoolctl.threadpool_limits = original
+
+
+def parse_lever(text: str) -> tuple[str, int]:
+    name, _, value = text.partition("=")
+    if name not in LEVERS or not value.isdigit():
+        raise argparse.ArgumentTypeError(f"expected NAME=INTEGER with NAME one of {', '.join(LEVERS)}, "
+                                         f"got {text!r}")
+    return name, int(value)
+
+
 def timed_run(spec, folder, **options) -> tuple[dict, list[float], float]:
     """A run, its summary, the optimizer's seconds per iteration, and its wall time."""
     per_iteration = []
@@ -103,108 +136,95 @@ def timed_run(spec, folder, **options) -> tuple[dict, list[float], float]:
         tuning._ask_tell = original
 
 
-@contextmanager
-def blas_threads(count: int | None):
-    """tuning runs whose optimizer uses ``count`` BLAS threads instead of one (serial runs only:
-    the patch would reach forked workers too)."""
-    import threadpoolctl
-
-    original = threadpoolctl.threadpool_limits
-    if count is not None:
-        threadpoolctl.threadpool_limits = lambda limits=None, user_api=None: original(count, user_api)
-    try:
-        yield
-    finally:
-        threadpoolctl.threadpool_limits = original
-
-
-def with_restarts(spec, restarts: int | None):
-    """``spec`` with ``restarts`` random starts of the GP's refits (None: as the spec says)."""
-    if restarts is None:
-        return spec
-    return dataclasses.replace(spec, optimizer=dataclasses.replace(spec.optimizer, gp_restarts=restarts))
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--calls", type=int, default=150)
     parser.add_argument("--skip-default", action="store_true", help="leave out skopt's defaults (slow)")
     parser.add_argument("--only", choices=("spectral", "effort"), help="run one of the two parts")
-    parser.add_argument("--gp-restarts", type=int, help="random starts of each GP refit (default: the spec's)")
-    parser.add_argument("--ei-starts", type=int, help="L-BFGS starts maximizing EI (default: "
-                        f"{optimizers.ACQUISITION['n_restarts_optimizer']})")
-    parser.add_argument("--blas-threads", type=int, help="the optimizer's BLAS threads in paper-spectral (default 1)")
-    parser.add_argument("--effort-seeds", type=int, default=1, help="seeds of the 2-worker effort run")
+    parser.add_argument("--lever", type=parse_lever, action="append", default=[], metavar="NAME=VALUE",
+                        help=f"a row of bo with this one setting changed ({', '.join(LEVERS)})")
+    parser.add_argument("--effort-seeds", type=int, default=1, help="seeds of each 2-worker effort run")
     args = parser.parse_args()
-    if args.ei_starts is not None:
-        optimizers.ACQUISITION["n_restarts_optimizer"] = args.ei_starts
-    print(f"settings: gp_restarts {args.gp_restarts if args.gp_restarts is not None else 'as each spec'}, "
-          f"EI {optimizers.ACQUISITION}, optimizer BLAS threads {args.blas_threads or 1}")
+    print(f"our settings: gp_restarts as each spec, EI {optimizers.ACQUISITION}, optimizer BLAS threads 1")
     work = Path(tempfile.mkdtemp(prefix="bench-tune-"))
     if args.only != "effort":
-        with blas_threads(args.blas_threads):
-            spectral_part(args, with_restarts(load_spec("paper-spectral"), args.gp_restarts), work)
+        spectral_part(args, work)
     if args.only != "spectral":
-        effort_part(args, with_restarts(load_spec("effort"), args.gp_restarts), work)
+        effort_part(args, work)
     print(json.dumps({"work": str(work)}), file=sys.stderr)
     return 0
 
 
-def spectral_part(args, spectral, work: Path) -> None:
+def spectral_part(args, work: Path) -> None:
+    spectral = load_spec("paper-spectral")
+    # (label, method, context factory)
+    runs = [("bo", "bo", nullcontext), ("random", "random", nullcontext), ("de", "de", nullcontext)]
+    if not args.skip_default:
+        runs.append(("bo-skopt-defaults", "bo", lambda: patched(SkoptDefaults)))
+    runs += [(f"bo, {name}={value}", "bo", lambda name=name, value=value: lever(name, value))
+             for name, value in args.lever]
     rows, best = [], {}
-    methods = ["bo", "random", "de"] + ([] if args.skip_default else ["bo-skopt-defaults"])
-    for method in methods:
+    for label, method, context in runs:
         for seed in range(args.seeds):
-            folder = work / f"{method}-{seed}"
-            if method == "bo-skopt-defaults":
-                with patched(SkoptDefaults):
-                    document, per, wall = timed_run(spectral, folder, method="bo", n_calls=args.calls, seed=seed)
-            else:
-                document, per, wall = timed_run(spectral, folder, method=method, n_calls=args.calls, seed=seed)
-            best.setdefault(method, []).append(document["best"]["objective"] if document["best"] else None)
+            with context():
+                document, per, wall = timed_run(spectral, work / f"{label}-{seed}".replace(" ", ""),
+                                                method=method, n_calls=args.calls, seed=seed)
+            best.setdefault(label, []).append(document["best"]["objective"] if document["best"] else None)
             if seed == 0:
-                rows.append((method, wall, document["optimizer_seconds"], document["evaluation_seconds"],
-                             statistics.median(per) if per else float("nan"), per[-1] if per else float("nan"),
-                             statistics.mean(per) if per else float("nan")))
-            print(f"  {method} seed {seed}: best {best[method][-1]}, {wall:.1f} s", file=sys.stderr, flush=True)
+                nan = float("nan")
+                rows.append((label, wall, document["optimizer_seconds"], document["evaluation_seconds"],
+                             statistics.median(per) if per else nan, per[-1] if per else nan,
+                             statistics.mean(per) if per else nan))
+            print(f"  {label} seed {seed}: best {best[label][-1]}, {wall:.1f} s", file=sys.stderr, flush=True)
     de_long, _, de_wall = timed_run(spectral, work / "de-2000", method="de", n_calls=2000, seed=0)
 
     print(f"paper-spectral, {args.calls} calls, serial (seed 0)")
-    print(f"{'method':20s} {'wall s':>8s} {'optimizer s':>12s} {'evaluation s':>13s} {'s/iter median':>14s} "
-          f"{'s/iter last':>12s} {'s/iter mean':>12s}")
-    for method, wall, optimizer_s, evaluation_s, median, last, mean in rows:
-        print(f"{method:20s} {wall:8.1f} {optimizer_s:12.1f} {evaluation_s:13.2f} {median:14.3f} {last:12.3f} "
-              f"{mean:12.3f}")
+    print(f"{'method':24s} {'wall s':>8s} {'optimizer s':>12s} {'evaluation s':>13s} {'s/iter median':>14s} "
+          f"{'s/iter last':>12s} {'s/iter mean':>12s} {'mean vs bo':>11s}")
+    ours_mean = rows[0][6]
+    for label, wall, optimizer_s, evaluation_s, median, last, mean in rows:
+        print(f"{label:24s} {wall:8.1f} {optimizer_s:12.1f} {evaluation_s:13.2f} {median:14.3f} {last:12.3f} "
+              f"{mean:12.3f} {mean / ours_mean:10.2f}x")
     print(f"\nbest objective over seeds 0..{args.seeds - 1} (lower is better; the paper's objective)")
-    for method, values in best.items():
+    for label, values in best.items():
         found = [v for v in values if v is not None]
-        print(f"{method:20s} " + " ".join(f"{v:9.3f}" if v is not None else "     none" for v in values)
-              + (f"   median {statistics.median(found):.3f}" if found else ""))
-    print(f"{'de, 2000 evaluations':20s} {de_long['best']['objective']:9.3f}   ({de_wall:.1f} s)")
+        print(f"{label:24s} " + " ".join(f"{v:9.3f}" if v is not None else "     none" for v in values)
+              + (f"   median {statistics.median(found):.3f}, worst {max(found):.3f}" if found else ""))
+    print(f"{'de, 2000 evaluations':24s} {de_long['best']['objective']:9.3f}   ({de_wall:.1f} s)")
 
 
-def effort_part(args, effort, work: Path) -> None:
+def effort_part(args, work: Path) -> None:
+    effort = load_spec("effort")
     one_doc, _, one = timed_run(effort, work / "effort-1", n_calls=args.calls, workers=1)
-    two_doc, _, two = timed_run(effort, work / "effort-2", n_calls=args.calls, workers=2)
-    with patched(skopt_batches):
-        ask_doc, _, ask = timed_run(effort, work / "effort-2-skopt-ask", n_calls=args.calls, workers=2)
+    runs = [("2 workers", nullcontext), ("2 workers, skopt's ask(n) batches", lambda: patched(skopt_batches))]
+    runs += [(f"2 workers, {name}={value}", lambda name=name, value=value: lever(name, value))
+             for name, value in args.lever if name != "blas_threads"]
+    results = {}                            # label -> [(wall, document)] over the seeds
+    for label, context in runs:
+        for seed in range(args.effort_seeds):
+            with context():
+                document, _, wall = timed_run(effort, work / f"effort-{label}-{seed}".replace(" ", ""),
+                                              n_calls=args.calls, workers=2, seed=seed)
+            results.setdefault(label, []).append((wall, document))
+            print(f"  effort {label} seed {seed}: {wall:.1f} s", file=sys.stderr, flush=True)
+
+    def best_of(document):
+        return document["best"]["objective"] if document["best"] else float("nan")
+
     print(f"\neffort, {args.calls} calls (seed 0)")
     print(f"{'run':36s} {'wall s':>8s} {'optimizer s':>12s} {'waiting s':>10s} {'vs 1 worker':>12s} {'best':>9s}")
-    for label, document, wall in (("1 worker", one_doc, one), ("2 workers", two_doc, two),
-                                  ("2 workers, skopt's ask(n) batches", ask_doc, ask)):
-        found = document["best"]["objective"] if document["best"] else float("nan")
+    for label, (wall, document) in [("1 worker", (one, one_doc))] + [(k, v[0]) for k, v in results.items()]:
         print(f"{label:36s} {wall:8.1f} {document['optimizer_seconds']:12.1f} "
-              f"{document['evaluation_seconds']:10.1f} {one / wall:11.2f}x {found:9.4f}")
+              f"{document['evaluation_seconds']:10.1f} {one / wall:11.2f}x {best_of(document):9.4f}")
     if args.effort_seeds > 1:
-        print(f"\neffort, {args.calls} calls, 2 workers, seeds 0..{args.effort_seeds - 1}")
-        results = []
-        for seed in range(args.effort_seeds):
-            document, _, wall = (two_doc, None, two) if seed == 0 else timed_run(
-                effort, work / f"effort-2-{seed}", n_calls=args.calls, workers=2, seed=seed)
-            results.append(document["best"]["objective"] if document["best"] else float("nan"))
-            print(f"seed {seed}: {wall:6.1f} s, best {results[-1]:.4f}", flush=True)
-        print(f"median best {statistics.median(results):.4f}")
+        print(f"\neffort, {args.calls} calls, 2 workers, seeds 0..{args.effort_seeds - 1}: wall s and best")
+        for label, found in results.items():
+            walls = [wall for wall, _ in found]
+            bests = [best_of(document) for _, document in found]
+            print(f"{label:36s} " + " ".join(f"{w:5.1f}" for w in walls)
+                  + "  |  " + " ".join(f"{b:.4f}" for b in bests)
+                  + f"  |  median {statistics.median(walls):.1f} s, best {statistics.median(bests):.4f}")
 
 
 if __name__ == "__main__":
