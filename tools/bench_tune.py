@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import statistics
 import sys
 import tempfile
@@ -105,6 +106,11 @@ def lever(name: str, value: int):
             threadpoolctl.threadpool_limits = original
 
 
+def slug(label: str) -> str:
+    """``label`` as a folder name."""
+    return re.sub(r"[^A-Za-z0-9=_-]+", "-", label).strip("-")
+
+
 def parse_lever(text: str) -> tuple[str, int]:
     name, _, value = text.partition("=")
     if name not in LEVERS or not value.isdigit():
@@ -168,7 +174,7 @@ def spectral_part(args, work: Path) -> None:
     for label, method, context in runs:
         for seed in range(args.seeds):
             with context():
-                document, per, wall = timed_run(spectral, work / f"{label}-{seed}".replace(" ", ""),
+                document, per, wall = timed_run(spectral, work / slug(f"{label}-{seed}"),
                                                 method=method, n_calls=args.calls, seed=seed)
             best.setdefault(label, []).append(document["best"]["objective"] if document["best"] else None)
             if seed == 0:
@@ -204,7 +210,7 @@ def effort_part(args, work: Path) -> None:
     for label, context in runs:
         for seed in range(args.effort_seeds):
             with context():
-                document, _, wall = timed_run(effort, work / f"effort-{label}-{seed}".replace(" ", ""),
+                document, _, wall = timed_run(effort, work / slug(f"effort-{label}-{seed}"),
                                               n_calls=args.calls, workers=2, seed=seed)
             results.setdefault(label, []).append((wall, document))
             print(f"  effort {label} seed {seed}: {wall:.1f} s", file=sys.stderr, flush=True)
