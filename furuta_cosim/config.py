@@ -14,6 +14,7 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
+from furuta_cosim.defaults import MAX_MAGNITUDE, MAX_PERIOD, MIN_PERIOD
 from furuta_cosim.errors import ConfigError
 
 # libyaml's safe loader when PyYAML was built with it: the same documents, several times faster
@@ -22,6 +23,7 @@ _SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 MAX_BYTES = 1_000_000
 MAX_NODES = 200_000     # nodes with every alias expanded (an alias bomb has billions)
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")  # all but tab and newline
 
 
 class _DuplicateKey(yaml.YAMLError):
@@ -96,12 +98,12 @@ def load_yaml(path: str | Path) -> Any:
                                f"{MAX_NODES:,}): not a furuta-cosim file"])
         return loader.construct_document(node)
     except _DuplicateKey as error:
-        raise ConfigError([f"{path}: line {error.again}: duplicate key {error.key!r} "
+        raise ConfigError([f"{path}: line {error.again}: duplicate key {excerpt(str(error.key))} "
                            f"(first at line {error.first})"]) from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else "?"
-        reason = getattr(error, "problem", None) or str(error)
+        reason = excerpt(getattr(error, "problem", None) or str(error), 80).strip("'\"")
         raise ConfigError([f"{path}: {where}: invalid YAML ({reason})"]) from None
     except RecursionError:
         raise ConfigError([f"{path}: nested too deeply: not a furuta-cosim file"]) from None
@@ -109,14 +111,22 @@ def load_yaml(path: str | Path) -> Any:
         loader.dispose()
 
 
+# the kinds of file a scenario tree holds in folders of their own; scenarios are at its top
+KIND_FOLDERS = ("controllers", "plants", "tuning")
+
+
 def resolve_file(name: str | Path, folder: Path, kind: str, *, beside: Path | None = None,
                  also: tuple[str, ...] = ()) -> Path:
-    """A file path, or a name of ``<folder>/<name>.yaml``.
+    """A file path, or a name of ``<folder>/<name>.yaml`` (``folder``: the shipped files of
+    this kind). The one rule: files resolve beside the file that names them.
 
-    A relative path (it ends in .yaml/.yml or names a folder) is taken beside the file that
-    names it (``beside``) when there is one, else from the working directory. An unknown name
-    is a ConfigError listing every valid name: the files of ``folder`` and the names ``also``
-    that the caller resolves itself.
+    A relative path (it ends in .yaml/.yml or has a folder in it) is taken beside the file that
+    names it (``beside``: that file's folder) when there is one, else from the working
+    directory. A plain name named in a file is looked up first in that file's own scenario
+    tree (the file's folder, or its parent for a file in ``controllers/``, ``plants/`` or
+    ``tuning/``; there in the kind's folder), then among the shipped files. An unknown name is
+    a ConfigError listing every valid name, with the names ``also`` that the caller resolves
+    itself.
     """
     path = Path(name)
     looks_like_path = path.suffix in (".yaml", ".yml") or len(path.parts) > 1
@@ -126,11 +136,18 @@ def resolve_file(name: str | Path, folder: Path, kind: str, *, beside: Path | No
         return path
     if beside is None and path.is_file():
         return path
-    candidate = folder / f"{name}.yaml"
-    if not candidate.is_file():
-        known = sorted({p.stem for p in folder.glob("*.yaml")} | set(also))
-        raise ConfigError([f"{name}: no such {kind} file or name (known: {', '.join(known)})"])
-    return candidate
+    folders = [folder]
+    if beside is not None:
+        tree = beside.parent if beside.name in KIND_FOLDERS else beside
+        own = tree / folder.name if folder.name in KIND_FOLDERS else tree
+        if own.resolve() != folder.resolve():
+            folders.insert(0, own)
+    for place in folders:
+        candidate = place / f"{name}.yaml"
+        if candidate.is_file():
+            return candidate
+    known = sorted({p.stem for place in folders for p in place.glob("*.yaml")} | set(also))
+    raise ConfigError([f"{name}: no such {kind} file or name (known: {', '.join(known)})"])
 
 
 class Frozen(Mapping):
@@ -180,7 +197,11 @@ class Checker:
 
     def mapping(self, value: Any, key: str, required: tuple = (), optional: tuple = ()) -> dict | None:
         if not isinstance(value, dict):
-            self.fail(key, f"expected a mapping, got {_kind(value)}")
+            if not key and isinstance(value, str):  # a whole file of text: maybe not ours, unquoted
+                self.fail(key, f"expected a mapping, got text of {len(value)} characters: not a "
+                               "furuta-cosim file")
+            else:
+                self.fail(key, f"expected a mapping, got {_kind(value)}")
             return None
         allowed = set(required) | set(optional)
         for name in value:
@@ -192,7 +213,7 @@ class Checker:
         return value
 
     def number(self, value: Any, key: str, *, positive: bool = False, minimum: float | None = None,
-               integer: bool = False) -> float | None:
+               maximum: float | None = None, integer: bool = False) -> float | None:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(key, f"expected a number, got {_kind(value)}")
             return None
@@ -208,7 +229,18 @@ class Checker:
         if minimum is not None and value < minimum:
             self.fail(key, f"must be >= {minimum:g}, got {value:g}")
             return None
+        if maximum is not None and value > maximum:
+            self.fail(key, f"must be <= {maximum:g}, got {value:g}")
+            return None
         return int(value) if integer else float(value)
+
+    def period(self, value: Any, key: str) -> float | None:
+        """A period (control, sample, communication step): from 1e-9 to 1e6."""
+        number = self.number(value, key, positive=True)
+        if number is not None and not MIN_PERIOD <= number <= MAX_PERIOD:
+            self.fail(key, f"expected a period from {MIN_PERIOD:g} to {MAX_PERIOD:g}, got {number:g}")
+            return None
+        return number
 
     def numbers(self, value: Any, key: str, **bounds) -> Mapping[str, float]:
         """A mapping of names to numbers (the names are free); the good entries, read-only."""
@@ -225,7 +257,7 @@ class Checker:
             self.fail(key, f"expected a non-empty string, got {_kind(value)}")
             return None
         if choices and value not in choices:
-            self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
+            self.fail(key, f"expected one of {', '.join(choices)}, got {excerpt(value)}")
             return None
         return value
 
@@ -244,9 +276,9 @@ class Checker:
     def file_name(self, value: Any, key: str) -> str | None:
         """A name that becomes part of file names (traces, figures): a plain name."""
         text = self.string(value, key)
-        if text is not None and not _NAME.match(text):
+        if text is not None and not _NAME.fullmatch(text):
             self.fail(key, f"must be a plain name (letters, digits, '.', '_', '+', '-'; it names "
-                           f"output files), got {text!r}")
+                           f"output files), got {excerpt(text)}")
             return None
         return text
 
@@ -254,6 +286,10 @@ class Checker:
         """Free text (a description); anything but a string is a problem."""
         if not isinstance(value, str):
             self.fail(key, f"expected text, got {_kind(value)}")
+            return ""
+        control = _CONTROL.search(value)
+        if control:
+            self.fail(key, f"contains a control character ({control.group()!r}): plain text only")
             return ""
         return value
 
@@ -303,7 +339,26 @@ class Checker:
             return None
         numbers = [[self.number(v, f"{key}[{i}][{j}]") for j, v in enumerate(r)]
                    for i, r in enumerate(value)]
-        return None if any(v is None for r in numbers for v in r) else numbers
+        if any(v is None for r in numbers for v in r):
+            return None
+        largest = max(abs(v) for r in numbers for v in r)
+        if largest > MAX_MAGNITUDE:
+            self.fail(key, f"entries must be within +-{MAX_MAGNITUDE:g}, got {largest:g}")
+            return None
+        return numbers
+
+
+def plain_name(text: str) -> bool:
+    """A name that may become part of a file name: letters, digits, '.', '_', '+', '-', not
+    starting with a dot (so never '.' or '..')."""
+    return bool(_NAME.fullmatch(text))
+
+
+def excerpt(text: str, limit: int = 30) -> str:
+    """A short, printable quotation of a value read from a file: an error never repeats more
+    of a file it could not use than this (it may not even be ours: ``../../etc/passwd``)."""
+    shown = repr(text[:limit])
+    return shown + ("..." if len(text) > limit else "")
 
 
 def _join(key: str, name: Any) -> str:
@@ -318,7 +373,7 @@ def _kind(value: Any) -> str:
     if isinstance(value, (int, float)):
         return f"a number ({value})"
     if isinstance(value, str):
-        return f"a string ({value!r})"
+        return f"a string ({excerpt(value)})"
     if isinstance(value, list):
         return f"a list of {len(value)}"
     if isinstance(value, dict):

@@ -6,3 +6,10 @@ them while building its parser)."""
 PAPER_PERIOD = 2e-3
 # The pendulum's conventional tracked output, when a plant has it.
 TRACKED_OUTPUT = "theta0"
+
+# What a period (control, sample, communication) and a matrix entry may be: beyond these a
+# build or a run is numerically meaningless (a period of 1e-300 s, a gain of 1e308 that turns
+# the output into -inf); each file key and option is refused with one line outside them.
+MIN_PERIOD = 1e-9
+MAX_PERIOD = 1e6
+MAX_MAGNITUDE = 1e12

@@ -33,3 +33,8 @@ class DesignError(ValueError):
     def __init__(self, message: str, key: str | None = None):
         self.key = key
         super().__init__(message)
+
+
+class RunStopped(RuntimeError):
+    """A run that stopped before its end through no fault of its input (a lost Dask scheduler,
+    no worker left): what it recorded is kept, and ``--resume`` continues it."""

@@ -1,13 +1,17 @@
 """Writing files so that a fault loses nothing: a file appears under its name only complete.
 
-Each writer writes a temporary file beside the target (``.<name>.partial``) and renames it;
-on any failure, Ctrl-C or SIGTERM included, the temporary file is removed.
+Each writer writes a temporary file beside the target (``.<name>.<random>.partial``, created
+exclusively, so a file or link planted there is never followed) and renames it; on any
+failure, Ctrl-C or SIGTERM included, the temporary file is removed.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import secrets
 import shutil
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -15,15 +19,20 @@ from typing import Iterator
 from furuta_cosim.errors import ConfigError
 
 
+
 @contextmanager
 def atomic(path: str | Path) -> Iterator[Path]:
     """``with atomic(target) as partial:`` write ``partial``; it becomes ``target`` at the end."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")
+    # named before it exists, so that an interruption at any point still removes it; created
+    # exclusively under a name no one can guess, so nothing planted there is ever followed
+    partial = path.with_name(f".{path.name}.{secrets.token_hex(8)}.partial")
     try:
+        os.close(os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
+                         0o666))
         yield partial
-        os.replace(partial, path)
+        os.replace(partial, path)  # replaces a link at ``path`` itself, never its target
     finally:
         partial.unlink(missing_ok=True)
 
@@ -66,3 +75,44 @@ def writable_folder(folder: Path, flag: str, named: Path) -> None:
         raise ConfigError([f"{flag} {named}: {probe} is not a folder"])
     if not os.access(probe, os.W_OK | os.X_OK):
         raise ConfigError([f"{flag} {named}: {probe} is not writable"])
+
+
+def sweep_temporary() -> int:
+    """Remove the temporary folders of this project's processes that are gone (killed, or a
+    Dask worker that never ran its exit handlers): ``furuta-cosim-{fmu,build}-<pid>-*`` in the
+    temporary directory whose process no longer runs. Returns how many were removed."""
+    removed = 0
+    try:
+        entries = list(Path(tempfile.gettempdir()).iterdir())
+    except OSError:
+        return 0
+    for entry in entries:
+        match = _TEMPORARY.fullmatch(entry.name)
+        if not match or int(match.group(1)) == os.getpid():
+            continue
+        try:
+            os.kill(int(match.group(1)), 0)
+            continue  # its process still runs
+        except ProcessLookupError:
+            pass
+        except (PermissionError, OverflowError, OSError):
+            continue  # another user's process, or no answer: leave it
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+            removed += 1
+    return removed
+
+
+_TEMPORARY = re.compile(r"furuta-cosim-(?:fmu|build)-(\d+)-.+")
+_SWEPT = False
+
+
+def temporary_folder(kind: str) -> Path:
+    """A new temporary folder named after this process (``furuta-cosim-<kind>-<pid>-...``), so
+    that :func:`sweep_temporary` can tell when it was left behind; the first one of a process
+    sweeps those of processes that are gone."""
+    global _SWEPT
+    if not _SWEPT:
+        _SWEPT = True
+        sweep_temporary()
+    return Path(tempfile.mkdtemp(prefix=f"furuta-cosim-{kind}-{os.getpid()}-"))
