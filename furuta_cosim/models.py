@@ -20,12 +20,14 @@ from furuta_cosim.fmu.plants import load_plant
 MEASURED = ("theta0", "theta1", "i")
 
 
-def load_model(name: str | Path = "paper-printed") -> LinearModel:
-    """Resolve a model name or file to a :class:`LinearModel` (see the module docstring)."""
+def load_model(name: str | Path = "paper-printed", beside: Path | None = None) -> LinearModel:
+    """Resolve a model name or file to a :class:`LinearModel` (see the module docstring);
+    ``beside``: the folder of the file that names it, where names and relative paths are
+    looked up first."""
     text = str(name)
     if text == "derived" or text.startswith("derived:"):
-        return derived(text.partition(":")[2] or "paper-calibrated")
-    plant = load_plant(name, also=("derived", "derived:<parameter set>"))
+        return derived(text.partition(":")[2] or "paper-calibrated", beside)
+    plant = load_plant(name, also=("derived", "derived:<parameter set>"), beside=beside)
     if plant.linear is None:
         # a parameter set of a nonlinear plant: its linearization
         return derived(plant.path)
@@ -36,12 +38,12 @@ def load_model(name: str | Path = "paper-printed") -> LinearModel:
                        {"source": str(plant.path)}, spec.time_unit)
 
 
-def derived(parameter_set: str | Path = "paper-calibrated") -> LinearModel:
+def derived(parameter_set: str | Path = "paper-calibrated", beside: Path | None = None) -> LinearModel:
     """The plant FMU linearized with ``parameter_set`` at the upright equilibrium."""
     from furuta_cosim.fmu.exporter import build_fmu
     from furuta_cosim.fmu.linearize import linearize
 
-    plant = load_plant(parameter_set)
+    plant = load_plant(parameter_set, beside=beside)
     if plant.linear is not None:
         raise ConfigError([f"{plant.path}: a linear plant has no 'derived' model; use its name"])
     result = linearize(build_fmu(plant), parameters=dict(plant.parameters), inputs={"V": 0.0},

@@ -92,12 +92,15 @@ class Model:
     substeps: str | None = None
     sample_period: str | None = None
     constants: dict[str, int] = field(default_factory=dict)
+    # name -> value reference, kept as variables are registered (a linear plant or a controller
+    # declares tens of thousands: a scan per registration made declaring quadratic)
+    _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False)
 
     def register_variable(self, variable: Real | Integer) -> None:
         """Add a variable; its value reference is its position of registration."""
         if not _NAME.match(variable.name):
             raise DeclarationError(f"{self.identifier}: invalid variable name {variable.name!r}")
-        if variable.name in self.names():
+        if variable.name in self._references:
             raise DeclarationError(f"{self.identifier}: variable {variable.name!r} declared twice")
         if variable.causality not in CAUSALITIES:
             raise DeclarationError(
@@ -107,6 +110,7 @@ class Model:
                 reason = f"must be a whole number in [{variable.minimum}, {variable.maximum}], got {variable.start}"
                 raise DeclarationError(f"{self.identifier}.{variable.name}: start {reason}",
                                        variable.name, reason)
+            self._references[variable.name] = ("integer", len(self.integers))
             self.integers.append(variable)
             return
         if variable.causality in ("parameter", "input"):
@@ -118,6 +122,7 @@ class Model:
                 raise DeclarationError(
                     f"{self.identifier}.{variable.name}: start {variable.start} must be > 0",
                     variable.name, f"must be > 0, got {variable.start:g}")
+        self._references[variable.name] = ("real", len(self.reals))
         self.reals.append(variable)
 
     def register_state(self, name: str, start: float, unit: str, description: str) -> None:
@@ -139,13 +144,8 @@ class Model:
 
     def value_reference(self, name: str) -> int:
         """Reals first, then integers: one value reference space for all types."""
-        for k, variable in enumerate(self.reals):
-            if variable.name == name:
-                return k
-        for k, variable in enumerate(self.integers):
-            if variable.name == name:
-                return len(self.reals) + k
-        raise KeyError(name)
+        kind, k = self._references[name]
+        return k if kind == "real" else len(self.reals) + k
 
     def check(self) -> None:
         """Everything the glue relies on is declared."""
@@ -157,5 +157,5 @@ class Model:
         elif self.substeps is None:
             raise DeclarationError(f"{self.identifier}: a continuous model needs substeps")
         for name in (self.substeps, self.sample_period):
-            if name is not None and name not in self.names():
+            if name is not None and name not in self._references:
                 raise DeclarationError(f"{self.identifier}: {name!r} is not declared")

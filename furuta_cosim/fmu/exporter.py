@@ -14,9 +14,9 @@ import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import uuid
 import zipfile
+from contextlib import contextmanager
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
@@ -24,9 +24,9 @@ import fmpy
 
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
-from furuta_cosim.files import atomic, copy
+from furuta_cosim.files import atomic, copy, temporary_folder
 from furuta_cosim.fmu.declaration import DeclarationError, Model
-from furuta_cosim.fmu.plants import PlantSet, load_plant
+from furuta_cosim.fmu.plants import PlantSet, load_plant, models
 
 GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
 # FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
@@ -44,7 +44,11 @@ def fmi_headers() -> Path:
 
 
 def declaration(plant: PlantSet) -> Model:
-    """Run the plant's ``declare()`` with its parameter set or linear spec."""
+    """Run the plant's ``declare()`` with its parameter set or linear spec (only a model of
+    ``fmu_src/``, by its plain name: code named anywhere else is never run)."""
+    if plant.model not in models():
+        raise ConfigError([f"{plant.path}: model: expected one of {', '.join(models())}, "
+                           f"got {plant.model!r}"])
     model_py = paths.fmu_sources() / plant.model / "model.py"
     spec = importlib.util.spec_from_file_location(f"_furuta_cosim_plant_{plant.model}", model_py)
     module = importlib.util.module_from_spec(spec)
@@ -356,18 +360,39 @@ def _build_cached(plant: PlantSet, log) -> Path:
     key = digest.hexdigest()
     guid = "{" + str(uuid.UUID(key[:32])) + "}"
     target = paths.cache() / f"{model.identifier}-{key[:16]}.fmu"
-    if not _intact(target, log):
-        compiler = _compiler()
-        if log:
-            log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
-        files["model_vars.h"] = generate_header(model, guid)
-        try:
-            _build(model, files, guid, compiler, target)
-            _seal(target)
-        except OSError as error:
-            raise _unwritable(error) from None
-        _accepts_its_defaults(plant, target)
+    if _intact(target, log):
+        return target
+    compiler = _compiler()
+    with _building(target):  # a second process building the same entry waits, then finds it
+        if not _intact(target, log):
+            if log:
+                log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
+            files["model_vars.h"] = generate_header(model, guid)
+            try:
+                _build(model, files, guid, compiler, target)
+                _seal(target)
+            except OSError as error:
+                raise _unwritable(error) from None
+            _accepts_its_defaults(plant, target)
     return target
+
+
+@contextmanager
+def _building(target: Path):
+    """An exclusive lock on one cache entry (``<entry>.lock``) while it is built."""
+    import fcntl
+
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        handle = os.open(target.with_name(target.name + ".lock"),
+                         os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    except OSError as error:
+        raise _unwritable(error) from None
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(handle)
 
 
 def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
@@ -386,8 +411,8 @@ def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
 
 def _build(model: Model, files: dict, guid: str, compiler: str, target: Path) -> None:
     sources = sorted(files)
-    with tempfile.TemporaryDirectory(prefix="furuta-cosim-build-") as work:
-        work = Path(work)
+    work = temporary_folder("build")
+    try:
         for name, text in files.items():
             (work / name).write_text(text)
         binary = work / f"{model.identifier}.so"
@@ -403,8 +428,17 @@ def _build(model: Model, files: dict, guid: str, compiler: str, target: Path) ->
         # atomic: a concurrent build or a crash never leaves half an FMU under its name
         with atomic(target) as partial:
             with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
-                archive.writestr("modelDescription.xml", description)
-                archive.write(binary, f"binaries/{PLATFORM}/{model.identifier}.so")
+                # fixed dates: the same sources give the same bytes, whichever build wins
+                _member(archive, "modelDescription.xml", description.encode())
+                _member(archive, f"binaries/{PLATFORM}/{model.identifier}.so", binary.read_bytes(), 0o755)
                 for name in sources:
-                    archive.writestr(f"sources/{name}", files[name])
+                    _member(archive, f"sources/{name}", files[name].encode())
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
 
+
+def _member(archive: zipfile.ZipFile, name: str, data: bytes, mode: int = 0o644) -> None:
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = (0o100000 | mode) << 16
+    archive.writestr(info, data)

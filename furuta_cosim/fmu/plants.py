@@ -45,20 +45,26 @@ class PlantSet:
     linear: LinearSpec | None = None
 
 
-def plant_path(name: str | Path, also: tuple[str, ...] = ()) -> Path:
+def plant_path(name: str | Path, also: tuple[str, ...] = (), beside: Path | None = None) -> Path:
     """A file path, a plant name in ``scenarios/plants``, or a model's default set; ``also``
-    names what the caller accepts besides (listed in the error for an unknown name)."""
-    model_py = paths.fmu_sources() / str(name) / "model.py"
-    if Path(name).suffix not in (".yaml", ".yml") and model_py.is_file():
-        default = _default_set(model_py)
-        if default:
-            name = default
-    return resolve_file(name, paths.scenarios() / "plants", "plant", also=tuple(model_names()) + also)
+    names what the caller accepts besides (listed in the error for an unknown name);
+    ``beside``: the folder of the file that names the plant (see ``resolve_file``)."""
+    if str(name) in model_names():
+        name = _default_set(paths.fmu_sources() / str(name) / "model.py")
+    return resolve_file(name, paths.scenarios() / "plants", "plant", beside=beside,
+                        also=tuple(model_names()) + also)
+
+
+def models() -> list[str]:
+    """The plant models of ``fmu_src/`` (a folder with a model.py and a plain name): the only
+    values a plant file's ``model`` may take. A parameter file never names code elsewhere."""
+    return sorted(p.parent.name for p in paths.fmu_sources().glob("*/model.py")
+                  if re.fullmatch(r"[a-z][a-z0-9_]*", p.parent.name))
 
 
 def model_names() -> list[str]:
     """The plant models that have a default parameter set (``furuta``): names a plant may take."""
-    return sorted(p.parent.name for p in paths.fmu_sources().glob("*/model.py") if _default_set(p))
+    return [name for name in models() if _default_set(paths.fmu_sources() / name / "model.py")]
 
 
 def _default_set(model_py: Path) -> str | None:
@@ -66,26 +72,32 @@ def _default_set(model_py: Path) -> str | None:
     return match.group(1) if match else None
 
 
-def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = ()) -> PlantSet:
-    """Read and validate a plant file; raises ConfigError listing every problem."""
-    return _load(plant_path(name, also), seen=())
+def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = (),
+               beside: Path | None = None) -> PlantSet:
+    """Read and validate a plant file; raises ConfigError listing every problem. ``beside``:
+    the folder of the file that names it, where a relative path or a name is looked up first."""
+    return _load(plant_path(name, also, beside), seen=())
 
 
 def _load(path: Path, seen: tuple) -> PlantSet:
     data = load_yaml(path)
     check = Checker(path)
-    top = check.mapping(data, "", required=("model",),
-                        optional=("description", "extends", "parameters", "identifier", "time",
-                                  "period", "substeps", "A", "B", "C", "D", "inputs", "outputs", "time_unit",
-                                  "states", "x0"))
+    top = check.mapping(data, "", required=("model",), optional=_NONLINEAR_KEYS + _LINEAR_KEYS)
     if top is None or "model" not in top:
         check.done()
     model = check.string(top["model"], "model")
     if model is None:
         check.done()
-    if not (paths.fmu_sources() / model / "model.py").is_file():
-        known = sorted(p.name for p in paths.fmu_sources().iterdir() if (p / "model.py").is_file())
-        check.fail("model", f"no plant model {model!r} in fmu_src (known: {', '.join(known)})")
+    # the keys of one kind of plant only: A in a furuta plant, extends in a linear one, would
+    # otherwise be silently ignored
+    own, other = ((_LINEAR_KEYS, _NONLINEAR_KEYS) if model == "linear" else (_NONLINEAR_KEYS, _LINEAR_KEYS))
+    for key in top:
+        if key in other and key not in own:
+            check.fail(key, f"not a key of a {model} plant (its keys: model, description, "
+                            f"{', '.join(k for k in own if k != 'description')})")
+    if model not in models():
+        check.fail("model", f"expected the name of a plant model of fmu_src ({', '.join(models())}), "
+                            f"got {_brief(model)}")
         check.done()
     description = check.text(top["description"], "description") if "description" in top else ""
     if model == "linear":
@@ -94,14 +106,10 @@ def _load(path: Path, seen: tuple) -> PlantSet:
     if "extends" in top:
         base_name = check.string(top["extends"], "extends")
         check.done()
-        base_path = Path(base_name)
-        if base_path.suffix in (".yaml", ".yml") and not base_path.is_absolute():
-            base_path = path.parent / base_path  # a relative file is relative to this one
-        else:
-            try:
-                base_path = plant_path(base_name)
-            except ConfigError as error:
-                raise error.within(f"{path}: extends") from None
+        try:
+            base_path = plant_path(base_name, beside=path.parent)
+        except ConfigError as error:
+            raise error.within(f"{path}: extends") from None
         if base_path.resolve() in seen:
             raise ConfigError([f"{path}: extends: circular ({base_name})"])
         base = _load(base_path, seen + (path.resolve(),))
@@ -111,6 +119,15 @@ def _load(path: Path, seen: tuple) -> PlantSet:
     parameters.update(check.numbers(top.get("parameters", {}), "parameters"))
     check.done()
     return PlantSet(path.stem, path, model, str(description), Frozen(parameters))
+
+
+_NONLINEAR_KEYS = ("description", "extends", "parameters")
+_LINEAR_KEYS = ("description", "identifier", "time", "period", "substeps", "A", "B", "C", "D",
+                "inputs", "outputs", "time_unit", "states", "x0")
+# an identifier names the FMU's C functions and files: no C keyword, no FMI name
+_RESERVED = frozenset("""auto break case char const continue default do double else enum extern
+float for goto if inline int long register restrict return short signed sizeof static struct
+switch typedef union unsigned void volatile while _Bool _Complex _Imaginary""".split())
 
 
 def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
@@ -136,11 +153,14 @@ def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
                           "outputs", ny)
     states = check.names(top.get("states", [f"x{k + 1}" for k in range(n)]), "states", n)
     x0 = check.vector(top.get("x0", [0.0] * n), "x0", n)
-    period = check.number(top.get("period", 1.0), "period", positive=True)
+    period = check.period(top.get("period", 1.0), "period")
     substeps = check.number(top.get("substeps", 10), "substeps", minimum=1, integer=True)
     identifier = top.get("identifier") or "".join(p.capitalize() for p in re.split(r"[^A-Za-z0-9]+", path.stem))
-    if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(identifier)):
-        check.fail("identifier", f"must be a C identifier, got {identifier!r}")
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]{0,63}", str(identifier)):
+        check.fail("identifier", f"must be a C identifier (a letter, then letters, digits or _; "
+                                 f"at most 64), got {_brief(identifier)}")
+    elif identifier in _RESERVED or str(identifier).lower().startswith("fmi"):
+        check.fail("identifier", f"{identifier!r} is a C keyword or an FMI name; choose another")
     if inputs and outputs and states and len(set(inputs + outputs + states)) != nu + ny + n:
         check.fail("inputs/outputs/states", "names must differ from each other")
     if time == "continuous" and "period" in top:
@@ -149,3 +169,8 @@ def _linear(top: dict, path: Path, check: Checker) -> LinearSpec:
     check.done()
     return LinearSpec(str(identifier), str(top.get("description", "")), time == "discrete",
                       period, substeps, A, B, C, D, inputs, outputs, states, x0, unit or "s")
+
+
+def _brief(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

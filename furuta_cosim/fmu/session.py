@@ -16,7 +16,6 @@ from __future__ import annotations
 import functools
 import math
 import shutil
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
@@ -26,6 +25,7 @@ import fmpy
 from fmpy.model_description import ModelDescription
 
 from furuta_cosim.errors import FmuError
+from furuta_cosim.files import temporary_folder
 from furuta_cosim.fmu.exporter import build_helper
 
 _FFI = cffi.FFI()
@@ -90,7 +90,8 @@ def _step_helper():
     return _HELPER or None
 
 
-_ERROR = 3  # fmi2Error; fmi2Discard (2) is treated as an error too: nothing here retries
+_FATAL = 4  # fmi2Fatal (and fmi2Pending, which nothing here asks for): the instance is lost;
+# fmi2Error (3) and fmi2Discard (2) are errors: nothing here retries
 
 
 @functools.lru_cache(maxsize=64)
@@ -109,7 +110,7 @@ def model_description(fmu: str | Path) -> ModelDescription:
 
 def _extract(fmu: Path) -> Path:
     """Unzip what an importer needs (the platform binary and resources) into a new folder."""
-    folder = Path(tempfile.mkdtemp(prefix="furuta-cosim-fmu-"))
+    folder = temporary_folder("fmu")
     wanted = (f"binaries/{fmpy.platform}/", "resources/")
     try:
         with zipfile.ZipFile(fmu) as archive:
@@ -243,8 +244,25 @@ class PlantSession:
         return text
 
     def _check(self, status: int, what: str) -> None:
+        if status >= _FATAL:
+            # FMI 2.0: after fmi2Fatal no function of the instance may be called, not even
+            # fmi2Terminate or fmi2FreeInstance; only unloading the library is left
+            self._c = None
+            self._step_io = lambda call, t, h: self._usable()
+            raise FmuError(f"{self.binary.identifier}: {what} failed fatally: {self._drain()} "
+                           "(the instance cannot be used again)")
         if status >= 2:
             raise FmuError(f"{self.binary.identifier}: {what} failed: {self._drain()}")
+
+    def _usable(self) -> None:
+        if self._c is None:
+            raise FmuError(f"{self.binary.identifier}: the instance is gone (closed, or it failed "
+                           "fatally): open a new session")
+
+    @property
+    def usable(self) -> bool:
+        """False once closed or after the FMU reported fmi2Fatal."""
+        return self._c is not None
 
     # -- set-up ----------------------------------------------------------------------------
     def reset(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0) -> None:
@@ -252,6 +270,7 @@ class PlantSession:
 
         ``parameters`` may name any parameter or input; ``<state>_start`` sets initial states.
         """
+        self._usable()
         lib, c = self._lib, self._c
         if self._initialized:
             self._check(lib.fmi2Reset(c), "fmi2Reset")
@@ -293,6 +312,7 @@ class PlantSession:
 
     def set_io(self, inputs: Sequence[str] = (), outputs: Sequence[str] = ()) -> None:
         """Choose the inputs :meth:`step` takes and the outputs it returns, in that order."""
+        self._usable()
         self.inputs, self.outputs = list(inputs), list(outputs)
         self._n_in, self._n_out = len(self.inputs), len(self.outputs)
         self._in_vr = _FFI.new("fmi2ValueReference[]", [self._real_vr(n, "input") for n in inputs] or [0])
@@ -332,24 +352,28 @@ class PlantSession:
         self.time = self._start + self._k * h
         return _FFI.unpack(self._out, self._n_out)
 
-    def _step_failed(self, which: int, inputs: Sequence[float]) -> None:
+    def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
+        which, status = divmod(failed, 8)
         what = {1: f"setting {', '.join(self.inputs)} = {list(inputs)}",
                 2: f"fmi2DoStep at t = {self.time:.9g}", 3: "reading the outputs"}[which]
-        self._check(_ERROR, what)
+        self._check(status, what)
 
     def _step_three_calls(self, call, t: float, h: float) -> int:
         lib, c = self._lib, self._c
-        if self._n_in and lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in) >= 2:
-            return 1
-        if lib.fmi2DoStep(c, t, h, 1) >= 2:
-            return 2
-        if self._n_out and lib.fmi2GetReal(c, self._out_vr, self._n_out, self._out) >= 2:
-            return 3
+        if c is None:
+            self._usable()
+        if self._n_in and (status := lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in)) >= 2:
+            return 8 + status
+        if (status := lib.fmi2DoStep(c, t, h, 1)) >= 2:
+            return 16 + status
+        if self._n_out and (status := lib.fmi2GetReal(c, self._out_vr, self._n_out, self._out)) >= 2:
+            return 24 + status
         return 0
 
     # -- any variable, any time ------------------------------------------------------------
     def get(self, names: Iterable[str]) -> list[float]:
         """Current values of Real or Integer variables."""
+        self._usable()
         values = []
         for name in names:
             variable = self.binary.variable(name)
@@ -366,6 +390,7 @@ class PlantSession:
 
     def set(self, values: Mapping[str, float]) -> None:
         """Set Real inputs between steps."""
+        self._usable()
         reals, integers = self._split(values)
         if integers:
             raise FmuError(f"{self.binary.identifier}: integers are parameters, set them in reset()")
@@ -376,6 +401,7 @@ class PlantSession:
     # -- model exchange --------------------------------------------------------------------
     def derivatives(self, x: Sequence[float]) -> list[float]:
         """f(x, inputs) of a model-exchange session, states ordered as the FMU declares them."""
+        self._usable()
         self._x[0:self._nx] = x
         self._check(self._lib.fmi2SetContinuousStates(self._c, self._x, self._nx),
                     "fmi2SetContinuousStates")
@@ -385,11 +411,13 @@ class PlantSession:
     # -- FMU state -------------------------------------------------------------------------
     def save_state(self):
         """A snapshot of the instance (fmi2GetFMUstate); give it to :meth:`restore_state`."""
+        self._usable()
         state = _FFI.new("void**")
         self._check(self._lib.fmi2GetFMUstate(self._c, state), "fmi2GetFMUstate")
         return _Snapshot(self, state, self.time)
 
     def restore_state(self, snapshot: "_Snapshot") -> None:
+        self._usable()
         self._check(self._lib.fmi2SetFMUstate(self._c, snapshot.pointer[0]), "fmi2SetFMUstate")
         self.time, self._start, self._k = snapshot.time, snapshot.time, 0
 
@@ -401,6 +429,7 @@ class PlantSession:
                 self._lib.fmi2Terminate(self._c)
             self._lib.fmi2FreeInstance(self._c)
             self._c = None
+        self._call = None
         if self._owns_binary:
             self.binary.close()
 

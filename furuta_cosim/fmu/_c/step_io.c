@@ -20,12 +20,14 @@ typedef struct {
     double *out;
 } StepCall;
 
-/* 0 when all went well, else 1, 2 or 3 for the call that failed (set, step, get). */
+/* 0 when all went well, else 8 * (1, 2 or 3 for the call that failed: set, step, get) plus
+ * the fmi2Status it returned (an fmi2Fatal instance must not be called again). */
 __attribute__((visibility("default"))) int step_io(const StepCall *call, double t, double h) {
-    if (call->n_in && call->set_real(call->component, call->in_vr, call->n_in, call->in) >= 2)
-        return 1;
-    if (call->do_step(call->component, t, h, 1) >= 2) return 2;
-    if (call->n_out && call->get_real(call->component, call->out_vr, call->n_out, call->out) >= 2)
-        return 3;
+    int status;
+    if (call->n_in && (status = call->set_real(call->component, call->in_vr, call->n_in, call->in)) >= 2)
+        return 8 + status;
+    if ((status = call->do_step(call->component, t, h, 1)) >= 2) return 16 + status;
+    if (call->n_out && (status = call->get_real(call->component, call->out_vr, call->n_out, call->out)) >= 2)
+        return 24 + status;
     return 0;
 }
