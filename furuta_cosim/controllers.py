@@ -21,6 +21,7 @@ import yaml
 
 from furuta_cosim import __version__, paths
 from furuta_cosim.config import Checker, load_yaml, resolve_file
+from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.design.controller import GeneralizedController
 from furuta_cosim.design.linear import LinearModel
 from furuta_cosim.design.prefilter import prefilter
@@ -72,7 +73,7 @@ def load_controller(name: str | Path, beside: Path | None = None) -> ControllerF
     time = check.string(top.get("time"), "time", ("discrete", "continuous")) if "time" in top else None
     period = None
     if "period" in top:
-        period = check.number(top["period"], "period", positive=True)
+        period = check.period(top["period"], "period")
     elif time == "discrete":
         check.fail("period", "missing (a discrete controller needs its sample period)")
     matrices = {}
@@ -102,10 +103,13 @@ def load_controller(name: str | Path, beside: Path | None = None) -> ControllerF
             tracked = check.string(section.get("output"), "prefilter.output") if "output" in section else None
             if "F" in section:
                 F = check.number(section["F"], "prefilter.F")
+                if F is not None and abs(F) > MAX_MAGNITUDE:
+                    check.fail("prefilter.F", f"must be within +-{MAX_MAGNITUDE:g}, got {F:g}")
     provenance = top.get("provenance", {})
     if not isinstance(provenance, dict):
         check.fail("provenance", "expected a mapping")
-    name = check.file_name(top["name"], "name") if "name" in top else path.stem
+    name = (check.file_name(top["name"], "name") if "name" in top
+            else check.file_name(path.stem, "name (taken from the file name)"))
     description = check.text(top["description"], "description") if "description" in top else ""
     check.done()
     try:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from furuta_cosim.controllers import check_fits, load_controller
+from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.design.controller import discretize_controller
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.plants import LinearSpec, PlantSet
@@ -47,11 +48,22 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
     except ConfigError as error:
         raise error.within(f"{cfile.source}: model") from None
     cfile = check_fits(cfile, linear)
+    if period is not None:
+        from furuta_cosim.config import Checker
+
+        check = Checker("--period")
+        period = check.period(period, "")
+        check.done()
     period = period or cfile.period or linear.period
     if not period:
         raise ConfigError([f"{cfile.source}: period: missing; a continuous controller needs the "
                            "period it is sampled at (--period)"])
     c = discretize_controller(cfile.controller, period)
+    for key in ("Ac", "Bc", "Cc", "Dc"):  # a continuous controller sampled at its period
+        matrix = getattr(c, key)
+        if matrix.size and not np.all(np.abs(matrix) <= MAX_MAGNITUDE):
+            raise ConfigError([f"{cfile.source}: {key} sampled at {period:g}: entries beyond "
+                               f"+-{MAX_MAGNITUDE:g} (or not finite): the FMU's output would be too"])
     F = cfile.F if cfile.F is not None else 0.0
     n, m = c.Dc.shape[1], c.n_xc
     A, B = c.Ac, np.hstack([c.Bc, np.zeros((m, 1))])     # xc[k+1] from [x; r]

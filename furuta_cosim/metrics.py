@@ -118,7 +118,13 @@ def regulation_settling(t: np.ndarray, y: np.ndarray) -> float | None:
 
 
 def compute(trace, settles: bool = True, error_window=None) -> dict[str, float]:
-    """All metrics of a trace as a flat ``{"signal.Metric": value}`` mapping."""
+    """All metrics of a trace as a flat ``{"signal.Metric": value}`` mapping. A run that blew
+    up gives infinite integrals (shown as "never"), not warnings."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _compute(trace, settles, error_window)
+
+
+def _compute(trace, settles: bool, error_window) -> dict[str, float]:
     t, dt = trace.t, (trace.t[1] - trace.t[0]) if len(trace.t) > 1 else 1.0
     y, r = trace.signals[trace.tracked], trace.r
     metrics: dict[str, float] = {}

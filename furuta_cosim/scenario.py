@@ -17,6 +17,7 @@ import numpy as np
 
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
+from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 
 SIGNAL_KEYS = {
@@ -145,6 +146,12 @@ class Regression:
     dy: float = 1e-3
     dx: int = 3
     points: int = 200           # baseline trace points (the run is downsampled to about this)
+    # a run that stops early (a diverging loop) is compared on what is reproducible across
+    # machines: that it stops, when (within ``divergence_time``; None: 5 % of the duration),
+    # and its trace while every signal stays within +-``divergence_bound``; past that, the
+    # last bits of BLAS decide where it goes
+    divergence_bound: float = 100.0
+    divergence_time: float | None = None
 
     def tolerance(self, metric: str) -> tuple[float, float]:
         own = self.metrics.get(metric, {})
@@ -180,6 +187,11 @@ class Scenario:
     @property
     def source(self) -> str:
         return str(self.path) if self.path else self.name
+
+    @property
+    def folder(self) -> Path | None:
+        """Where the files it names are looked up first (None: a scenario made in code)."""
+        return self.path.parent if self.path else None
 
 
 def scenario_path(name: str | Path, beside: Path | None = None) -> Path:
@@ -225,7 +237,8 @@ def load_scenario(name: str | Path) -> Scenario:
     if "plot" in top:
         plot = tuple(check.names(top["plot"], "plot") or ())
     regression = _regression(check, top["regression"]) if "regression" in top else Regression()
-    name = check.file_name(top["name"], "name") if "name" in top else path.stem
+    name = (check.file_name(top["name"], "name") if "name" in top
+            else check.file_name(path.stem, "name (taken from the file name)"))
     description = check.text(top["description"], "description") if "description" in top else ""
     check.done()
     return Scenario(name, description, path,
@@ -256,7 +269,8 @@ def load_mapping(path: str | Path) -> PlantMapping:
 
 
 def _regression(check: Checker, value) -> Regression:
-    section = check.mapping(value, "regression", optional=("rtol", "atol", "metrics", "band", "points"))
+    section = check.mapping(value, "regression", optional=("rtol", "atol", "metrics", "band", "points",
+                                                            "divergence"))
     if not section:
         return Regression()
     found = {}
@@ -287,6 +301,14 @@ def _regression(check: Checker, value) -> Regression:
             check.fail("regression.points", f"at most 100000 (a baseline is meant to stay small), got {points}")
             points = None
         found["points"] = points
+    if "divergence" in section:
+        diverged = check.mapping(section["divergence"], "regression.divergence", optional=("bound", "time"))
+        if diverged and "bound" in diverged:
+            found["divergence_bound"] = check.number(diverged["bound"], "regression.divergence.bound",
+                                                     positive=True)
+        if diverged and "time" in diverged:
+            found["divergence_time"] = check.number(diverged["time"], "regression.divergence.time",
+                                                    positive=True)
     return Regression(**{k: v for k, v in found.items() if v is not None})
 
 
@@ -388,7 +410,12 @@ def _signal(check: Checker, value, key: str) -> Signal | None:
         else:
             positive = name == "period"
             minimum = 0.0 if name in ("time", "start") else None
-            number = check.number(section[name], f"{key}.{name}", positive=positive, minimum=minimum)
+            # a reference is a physical signal: within +-1e12 like every matrix entry
+            number = check.number(section[name], f"{key}.{name}", positive=positive, minimum=minimum,
+                                  maximum=MAX_MAGNITUDE)
+            if number is not None and minimum is None and number < -MAX_MAGNITUDE:
+                check.fail(f"{key}.{name}", f"must be >= {-MAX_MAGNITUDE:g}, got {number:g}")
+                number = None
             if name == "duty" and number is not None and not 0 < number < 1:
                 check.fail(f"{key}.duty", f"must be between 0 and 1, got {number}")
             params[name] = number

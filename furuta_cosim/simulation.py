@@ -102,13 +102,34 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     return document, results
 
 
+# what simulate writes besides metrics.json: a CSV trace per controller (header ``t,...``), a
+# figure as PNG and SVG; only such files are ever removed
+_OURS = {".csv": (b"t,",), ".png": (b"\x89PNG\r\n\x1a\n",), ".svg": (b"<?xml", b"<svg")}
+
+
 def _files_of_earlier_run(folder: Path) -> set[str]:
-    """The files an earlier run's metrics.json lists in ``folder`` (only those: a user's own
-    files there are never touched)."""
+    """The files an earlier run's metrics.json lists in ``folder`` that this command can have
+    written (a trace or a figure, by name and by content): a user's own files there are never
+    touched, even when a metrics.json names them."""
+    from furuta_cosim.config import plain_name
+
     try:
         listed = json.loads((folder / "metrics.json").read_text()).get("files", [])
     except (OSError, ValueError, AttributeError):
         return set()
-    return {name for name in listed if isinstance(name, str) and Path(name).name == name
-            and name not in ("", ".", "..")}
+    ours = set()
+    for name in listed if isinstance(listed, list) else []:
+        if not isinstance(name, str) or Path(name).suffix not in _OURS or not plain_name(Path(name).stem):
+            continue
+        path = folder / name
+        try:
+            if path.is_symlink() or not path.is_file():
+                continue
+            with path.open("rb") as handle:
+                head = handle.read(16)
+        except OSError:
+            continue
+        if head.startswith(_OURS[path.suffix]):
+            ours.add(name)
+    return ours
 

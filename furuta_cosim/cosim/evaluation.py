@@ -79,7 +79,9 @@ def compile_controller(prepared: Prepared, controller, *, key: str | None = None
         def model():
             from furuta_cosim.models import load_model
 
-            return load_model(cfile.model or scenario.plant)
+            if cfile.model:
+                return load_model(cfile.model, cfile.path.parent if cfile.path else None)
+            return load_model(scenario.plant, scenario.folder)
 
         has_model = bool(cfile.model or (prepared.plant and scenario.plant))
         cfile = fit(cfile, plant=f"plant {prepared.plant_name}", states=len(prepared.states),
@@ -98,7 +100,7 @@ def scenario_controllers(prepared: Prepared, names: Sequence | None = None) -> l
     given on a command line (relative to the working directory)."""
     if names:
         return [compile_controller(prepared, n, key=f"--controller {n}") for n in names]
-    folder = prepared.scenario.path.parent if prepared.scenario.path else None
+    folder = prepared.scenario.folder
     return [compile_controller(prepared, n, key=f"controllers[{k}]", beside=folder)
             for k, n in enumerate(prepared.scenario.controllers)]
 

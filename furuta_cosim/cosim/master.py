@@ -247,7 +247,7 @@ def _plant(scenario: Scenario, fmu: str | Path | None) -> tuple[PlantSet | None,
     plant = None
     if scenario.plant:
         try:
-            plant = load_plant(scenario.plant)
+            plant = load_plant(scenario.plant, beside=scenario.folder)
         except ConfigError as error:
             raise error.within(f"{scenario.source}: plant.model") from None
     given = fmu if fmu is not None else scenario.fmu

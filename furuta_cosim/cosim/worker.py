@@ -12,6 +12,7 @@ Sessions are closed when the worker process exits.
 from __future__ import annotations
 
 import atexit
+import os
 from pathlib import Path
 
 from furuta_cosim.cosim.evaluation import evaluate
@@ -25,15 +26,49 @@ _SESSIONS: dict = {}
 _PREPARED: dict[str, Prepared] = {}
 
 
+def default_workers() -> int:
+    """One worker per core: the default of every command that runs workers."""
+    return os.cpu_count() or 1
+
+
+def max_workers() -> int:
+    """At most four worker processes per core: more only cost memory and start-up."""
+    return 4 * default_workers()
+
+
+def check_workers(workers: int, flag: str = "--workers") -> int:
+    """``workers`` when it is a usable count of worker processes; ConfigError otherwise."""
+    from furuta_cosim.errors import ConfigError
+
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= max_workers():
+        raise ConfigError([f"{flag}: expected a whole number from 1 to {max_workers()} (four per "
+                           f"core), got {workers}"])
+    return workers
+
+
+def _watch_parent(parent: int) -> None:
+    """In a worker: end this process when the one that started it is gone (killed with -9,
+    say), instead of living on as an orphan."""
+    import threading
+    import time
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="watch-parent", daemon=True).start()
+
+
 def start_pool(workers: int):
-    """A pool of ``workers`` local processes, each with one BLAS thread."""
-    import os
+    """A pool of ``workers`` local processes, each with one BLAS thread, each ending when
+    this process ends."""
     from concurrent.futures import ProcessPoolExecutor
 
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
     os.environ.update(SINGLE_THREAD)  # inherited by the workers
     try:
-        return ProcessPoolExecutor(workers)
+        return ProcessPoolExecutor(workers, initializer=_watch_parent, initargs=(os.getpid(),))
     finally:
         for key, value in saved.items():
             if value is None:
@@ -55,9 +90,13 @@ def session_for(prepared: Prepared):
 
         fmu = build_fmu(prepared.plant)
     key = str(fmu)
-    if key not in _SESSIONS:
-        _SESSIONS[key] = PlantSession.open(fmu)
-    return _SESSIONS[key]
+    session = _SESSIONS.get(key)
+    if session is not None and not session.usable:  # the FMU failed fatally: a new instance
+        session.close()
+        session = None
+    if session is None:
+        session = _SESSIONS[key] = PlantSession.open(fmu)
+    return session
 
 
 def evaluate_here(prepared: Prepared, controller) -> RunResult:

@@ -39,6 +39,11 @@ MAX_POINTS = 20_000
 def plot_runs(traces: Mapping[str, Trace], path: str | Path, title: str = "",
               signals: Sequence[str] | None = None, time_unit: str = "s") -> list[Path]:
     """:func:`figure_of_runs` written as PNG and SVG (atomically); returns their paths."""
+    with np.errstate(all="ignore"):  # a run that blew up is drawn until it left the axes
+        return _plot_runs(traces, path, title, signals, time_unit)
+
+
+def _plot_runs(traces, path, title, signals, time_unit) -> list[Path]:
     figure = figure_of_runs(traces, title, signals, time_unit)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

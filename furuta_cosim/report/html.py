@@ -2,7 +2,11 @@
 figures inline (SVG as markup, PNG as base64), no script, no network, no external file.
 
 Only the Markdown the project writes is rendered: headings, paragraphs, bullet lists, pipe
-tables, fenced code, `code`, **bold** and [links](...). Everything else is escaped text.
+tables, fenced code, `code`, **bold** and [links](...). Everything else is escaped text, links
+go only to http, https, mailto or a place in the page (a ``javascript:`` or ``data:`` link
+stays text), control characters are dropped, SVG figures keep only drawing elements and
+attributes (no script, no event handler, no external reference), and the page's content
+security policy forbids scripts and anything fetched.
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ from __future__ import annotations
 import base64
 import html
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 STYLE = """
@@ -28,12 +33,29 @@ _VERDICTS = {"holds": "holds", "holds under a reading": "reading", "does not hol
              "PASS": "holds", "FAIL": "fails", "pass": "holds", "fail": "fails", "missing": "fails"}
 
 
+# C0 and C1 control characters but tab and newline: they have no place in a page
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+_SAFE_LINK = re.compile(r"(?:https?://|mailto:|#)[^\s\"'<>]*", re.I)
+POLICY = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
+
+
+def clean_text(text: str) -> str:
+    """Text with its control characters removed (tab and newline kept)."""
+    return _CONTROL.sub("", text)
+
+
+def _link(m: re.Match) -> str:
+    label, target = m.group(1), html.unescape(m.group(2))
+    if not _SAFE_LINK.fullmatch(target):
+        return f"{label} ({m.group(2)})"  # a javascript:, data: or file link stays text
+    return f'<a href="{html.escape(target)}">{label}</a>'
+
+
 def _inline(text: str) -> str:
-    out = html.escape(text, quote=False)
+    out = html.escape(clean_text(text), quote=False)
     out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
     out = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", out)
-    out = re.sub(r"\[([^\]]+)\]\(([^)\s]+)\)",
-                 lambda m: f'<a href="{html.escape(m.group(2))}">{m.group(1)}</a>', out)
+    out = re.sub(r"\[([^\]]+)\]\(([^)\s]+)\)", _link, out)
     for verdict, css in _VERDICTS.items():
         if out.strip() == verdict:
             return f'<span class="{css}">{out}</span>'
@@ -42,7 +64,7 @@ def _inline(text: str) -> str:
 
 def markdown_to_html(text: str) -> str:
     """The subset of Markdown the project writes, as HTML."""
-    lines = text.splitlines()
+    lines = clean_text(text).splitlines()
     out, k = [], 0
     while k < len(lines):
         line = lines[k]
@@ -92,10 +114,7 @@ def figure(path: str | Path, caption: str = "") -> str:
     """A figure file inline: SVG as markup (its XML prologue dropped), PNG as a data URI."""
     path = Path(path)
     if path.suffix == ".svg":
-        text = path.read_text()
-        start = text.find("<svg")
-        body = text[start:] if start >= 0 else ""
-        body = re.sub(r"<script.*?</script>", "", body, flags=re.S)  # a figure needs none
+        body = clean_svg(path.read_text(errors="replace"))
     else:
         data = base64.b64encode(path.read_bytes()).decode()
         body = f'<img alt="{html.escape(caption or path.stem)}" src="data:image/png;base64,{data}">'
@@ -103,8 +122,56 @@ def figure(path: str | Path, caption: str = "") -> str:
     return f"<figure>{body}{note}</figure>"
 
 
+_SVG = "http://www.w3.org/2000/svg"
+_XLINK = "http://www.w3.org/1999/xlink"
+# what a figure is drawn with; anything else (script, foreignObject, image, iframe, ...) goes
+_DRAWING = {"svg", "g", "defs", "clipPath", "path", "rect", "circle", "ellipse", "line",
+            "polyline", "polygon", "text", "tspan", "use", "style", "title", "desc",
+            "linearGradient", "radialGradient", "stop", "pattern", "mask", "symbol", "marker"}
+_OUTSIDE = re.compile(r"url\(\s*(?!['\"]?#)|@import|javascript:|expression\(", re.I)
+
+
+def clean_svg(text: str) -> str:
+    """An SVG document reduced to drawing: only the elements of ``_DRAWING`` (matched exactly:
+    ``SCRIPT`` is no SVG element either), no ``on*`` attribute, references only within the
+    figure (``#id``), no style that loads anything. A figure that does not parse is left out
+    with a note."""
+    try:
+        root = ET.fromstring(text.encode() if text.lstrip().startswith("<?xml") else text)
+    except (ET.ParseError, ValueError):
+        return "<p>(a figure that is not valid SVG was left out)</p>"
+    if _local(root.tag) != "svg":
+        return "<p>(a figure that is not SVG was left out)</p>"
+    _prune(root)
+    ET.register_namespace("", _SVG)
+    ET.register_namespace("xlink", _XLINK)
+    return ET.tostring(root, encoding="unicode")
+
+
+def _local(tag) -> str:
+    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
+
+
+def _prune(element) -> None:
+    for name in list(element.attrib):
+        value = element.attrib[name]
+        local = _local(name).lower()
+        if (local.startswith("on") or (local == "href" and not value.startswith("#"))
+                or _OUTSIDE.search(value) or _CONTROL.search(value)):
+            del element.attrib[name]
+    if _local(element.tag) == "style" and element.text and _OUTSIDE.search(element.text):
+        element.text = ""
+    for child in list(element):
+        if not (isinstance(child.tag, str) and child.tag.startswith("{" + _SVG + "}")
+                and _local(child.tag) in _DRAWING):
+            element.remove(child)
+        else:
+            _prune(child)
+
+
 def page(title: str, body: str) -> str:
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<meta http-equiv=\"Content-Security-Policy\" content=\"{POLICY}\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-            f"<title>{html.escape(title)}</title><style>{STYLE}</style></head>\n"
+            f"<title>{html.escape(clean_text(title))}</title><style>{STYLE}</style></head>\n"
             f"<body>\n{body}\n</body></html>\n")
