@@ -102,15 +102,22 @@ class Case:
 
 
 def make_baseline(prepared: Prepared, compiled: Compiled, result: RunResult) -> dict:
+    """The baseline document of a run. A run that stopped early keeps only what another
+    machine reproduces: that it stopped, when, and its trace while every signal stayed within
+    the scenario's ``regression.divergence.bound`` (no metrics: the blow-up dominates them)."""
     scenario = prepared.scenario
     trace = result.trace
-    every = max(1, math.ceil(len(trace.t) / scenario.regression.points))
+    every = max(1, math.ceil(prepared.steps / scenario.regression.points))
     columns = trace.columns()
-    rows = np.column_stack([trace[c][::every] for c in columns]) if len(trace.t) else np.zeros((0, len(columns)))
+    keep = len(trace.t)
+    if result.failure:
+        keep = _bounded_length(trace, columns, scenario.regression.divergence_bound)
+    rows = (np.column_stack([trace[c][:keep:every] for c in columns]) if keep
+            else np.zeros((0, len(columns))))
     from fmpy import read_model_description
 
     description = read_model_description(str(prepared.fmu))
-    return {
+    document = {
         "format": FORMAT,
         "scenario": {"name": scenario.name, "sha256": file_hash(scenario.path)},
         "controller": {"name": compiled.name, "sha256": file_hash(compiled.cfile.path)},
@@ -119,10 +126,23 @@ def make_baseline(prepared: Prepared, compiled: Compiled, result: RunResult) -> 
                   "start": {k: _number(v) for k, v in sorted(prepared.start.items())}},
         "made_with": f"furuta-cosim {__version__}",
         "failure": result.failure,
-        "metrics": {k: _number(v) for k, v in sorted(result.metrics.items())},
-        "trace": {"every": every, "columns": columns,
-                  "rows": [[_number(v) for v in row] for row in rows.tolist()]},
     }
+    if result.failure:
+        document["stopped_at"] = _number(trace.t[-1]) if len(trace.t) else 0.0
+    document["metrics"] = {} if result.failure else {
+        k: _number(v) for k, v in sorted(result.metrics.items())}
+    document["trace"] = {"every": every, "columns": columns,
+                         "rows": [[_number(v) for v in row] for row in rows.tolist()]}
+    return document
+
+
+def _bounded_length(trace, columns: list[str], bound: float) -> int:
+    """How many samples of the trace come before any signal leaves +-bound."""
+    if not len(trace.t):
+        return 0
+    values = np.column_stack([np.asarray(trace[c], dtype=float) for c in columns if c != "t"])
+    outside = np.flatnonzero(~np.all(np.abs(values) <= bound, axis=1))
+    return int(outside[0]) if len(outside) else len(trace.t)
 
 
 def baseline_text(document: dict) -> str:
@@ -145,7 +165,7 @@ def read_baseline(path: Path) -> dict:
     data = load_yaml(path)
     check = Checker(path)
     top = check.mapping(data, "", required=("format", "scenario", "controller", "metrics", "trace"),
-                        optional=("plant", "made_with", "failure"))
+                        optional=("plant", "made_with", "failure", "stopped_at"))
     if top is None:
         check.done()
     if "format" in top and top["format"] != FORMAT:
@@ -159,6 +179,12 @@ def read_baseline(path: Path) -> dict:
                     check.string(section.get("sha256"), f"{part}.sha256")
     if top.get("failure") is not None:
         check.string(top["failure"], "failure")
+        if "stopped_at" not in top:
+            check.fail("stopped_at", "missing (a baseline of a run that stopped early records when)")
+        else:
+            check.number(top["stopped_at"], "stopped_at", minimum=0.0)
+    elif "stopped_at" in top:
+        check.fail("stopped_at", "only a baseline of a run that stopped early (failure) has one")
     metrics = {}
     if "metrics" in top:
         raw = top["metrics"]
@@ -179,12 +205,17 @@ def read_baseline(path: Path) -> dict:
                 check.fail("trace.columns", f"expected a column t, got {columns}")
             elif columns and _rows_ok(check, rows, len(columns)):
                 values = np.array(rows, dtype=float).reshape(len(rows), len(columns))
-                if len(values) and np.any(np.diff(values[:, columns.index("t")]) <= 0):
+                bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
+                if len(bad):
+                    check.fail(f"trace.rows[{bad[0]}]", f"not finite ({len(bad)} of {len(rows)} "
+                                                        "rows): a baseline's trace is finite")
+                elif len(values) and np.any(np.diff(values[:, columns.index("t")]) <= 0):
                     check.fail("trace.rows", "the times (column t) must increase")
                 else:
                     trace = {c: values[:, j] for j, c in enumerate(columns)}
     check.done()
-    return {**top, "metrics": metrics, "trace": trace}
+    every = int(top["trace"]["every"]) if trace is not None else 1
+    return {**top, "metrics": metrics, "trace": trace, "every": every}
 
 
 def _rows_ok(check: Checker, rows, width: int) -> bool:
@@ -212,6 +243,17 @@ def check_versions(baseline: dict, path: Path, prepared: Prepared, compiled: Com
         problems.append(f"{path}: scenario.sha256: made from another version of {scenario.source} "
                         f"({baseline['scenario'].get('sha256')}, now {file_hash(scenario.path)}); "
                         "check the change, then run 'furuta-cosim regress --update'")
+    trace = baseline["trace"]
+    if not problems and trace is not None:
+        # the rows are the run's samples, every ``every``-th: all of them unless it stopped early
+        instants = np.asarray(prepared.t)[::baseline["every"]]
+        rows = len(trace["t"])
+        if baseline.get("failure") is None and rows != len(instants):
+            problems.append(f"{path}: trace.rows: expected {len(instants)} rows (the run's samples, "
+                            f"every {baseline['every']}), got {rows}: the baseline is damaged")
+        elif rows > len(instants) or not np.allclose(trace["t"], instants[:rows], rtol=1e-9, atol=1e-12):
+            problems.append(f"{path}: trace.rows: the times (column t) are not the run's sample "
+                            "instants: the baseline is damaged")
     if problems:
         raise ConfigError(problems)
 
@@ -221,14 +263,27 @@ def check_versions(baseline: dict, path: Path, prepared: Prepared, compiled: Com
 
 
 def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list[Difference], int]:
-    """What moved between ``baseline`` and ``result``, and how many things were compared."""
+    """What moved between ``baseline`` and ``result``, and how many things were compared.
+
+    A baseline of a run that stopped early is compared on what is reproducible: that the run
+    stops too, within ``regression.divergence.time`` of it, and its trace up to where the
+    baseline's left the bound (which is where the baseline's rows end); not its metrics."""
     tolerance = scenario.regression
     differences = []
-    if (baseline.get("failure") is None) != (result.failure is None):
+    checked = 0
+    stopped = baseline.get("failure") is not None
+    if stopped != (result.failure is not None):
         differences.append(Difference("run", "run", baseline.get("failure") or "to the end",
                                       result.failure or "to the end"))
-    checked = 0
-    for name, expected in baseline["metrics"].items():
+    elif stopped:
+        checked += 1
+        allowed = (tolerance.divergence_time if tolerance.divergence_time is not None
+                   else 0.05 * scenario.duration)
+        at = float(result.trace.t[-1]) if len(result.trace.t) else 0.0
+        if abs(at - baseline["stopped_at"]) > allowed:
+            differences.append(Difference("run", "stopped_at", baseline["stopped_at"], at,
+                                          f"within {allowed:g} (regression.divergence.time)"))
+    for name, expected in ({} if stopped else baseline["metrics"]).items():
         checked += 1
         got = result.metrics.get(name)
         if got is None:
@@ -237,10 +292,16 @@ def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list
         rtol, atol = tolerance.tolerance(name)
         if not _close(got, expected, rtol, atol):
             differences.append(Difference("metric", name, expected, got, f"rtol {rtol:g}, atol {atol:g}"))
-    for name in sorted(set(result.metrics) - set(baseline["metrics"])):
-        differences.append(Difference("metric", name, "not in the baseline", result.metrics[name]))
+    if not stopped:
+        for name in sorted(set(result.metrics) - set(baseline["metrics"])):
+            differences.append(Difference("metric", name, "not in the baseline", result.metrics[name]))
     reference = baseline["trace"]
-    if reference is not None and len(reference["t"]) >= 2:
+    if reference is None:
+        return differences, checked
+    for name in result.trace.columns():
+        if name not in reference:
+            differences.append(Difference("trace", name, "in the baseline", "missing from it"))
+    if len(reference["t"]) >= 2:
         t = result.trace.t
         for name, y_ref in reference.items():
             if name == "t":
@@ -257,7 +318,8 @@ def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list
                 at = reference["t"][k]
                 differences.append(Difference(
                     "trace", name, f"{_show(float(y_ref[k]))} at t = {at:.6g}",
-                    float(np.interp(at, t, y)), f"{len(outside)} of {len(reference['t'])} baseline "
+                    float(np.interp(at, t, y)) if len(t) else "no sample",
+                    f"{len(outside)} of {len(reference['t'])} baseline "
                     f"points outside the band (dy {tolerance.dy:g}, dx {tolerance.dx})"))
     return differences, checked
 
@@ -272,20 +334,25 @@ def _outside_band(t, y, t_ref, y_ref, dy: float, dx: int) -> list[int]:
     y_ref = np.asarray(y_ref, dtype=float)
     t = np.asarray(t, dtype=float)
     covered = (t_ref >= t[0]) & (t_ref <= t[-1]) if len(t) else np.zeros(len(t_ref), bool)
-    finite = np.isfinite(y_ref) & covered  # a diverged baseline: where it was still finite
-    t_ref, y_ref = t_ref[finite], y_ref[finite]
+    t_ref, y_ref = t_ref[covered], y_ref[covered]
     if len(t_ref) < 2:
         return []
     y_at = np.interp(t_ref, t, np.asarray(y, dtype=float))
+    if not np.all(np.isfinite(y_at)):
+        return [int(k) for k in np.flatnonzero(~np.isfinite(y_at))]
+    # fmpy's band is dy of the baseline's range: one wild value on either side would widen it
+    # to everything, so its height is dy of the smaller of the two ranges
+    spread = float(np.ptp(y_ref))
+    if spread > 0:
+        dy = dy * min(spread, float(np.ptp(y_at))) / spread
     _, _, _, out = validate_signal(t=t_ref, y=y_at, t_ref=t_ref.copy(), y_ref=y_ref,
                                    num=len(t_ref), dx=2 * dx + 1, dy=dy)
     # validate_signal leaves the first and last instants out; they count here
     out[[0, -1]] = False
     ends = [0, len(t_ref) - 1]
-    band = max(float(np.ptp(y_ref)) * dy, 0.5 if not y_ref.any() else 0.0)
+    band = max(spread * dy, 0.5 if not y_ref.any() else 0.0)
     for k in ends:
         out[k] = abs(y_at[k] - y_ref[k]) > band
-    out |= ~np.isfinite(y_at)
     return [int(k) for k in np.flatnonzero(out)]
 
 
@@ -352,6 +419,12 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     """
     import time
 
+    from furuta_cosim.cosim.worker import check_workers
+
+    check_workers(workers)
+    if baselines is not None and Path(baselines).exists() and not Path(baselines).is_dir():
+        raise ConfigError([f"--baselines {baselines}: is a file; name the folder that holds "
+                           "<scenario>/<controller>.yaml baselines"])
     if update and (fmu or overrides or mapping):
         raise ConfigError(["--update writes the baselines from the scenarios' own plants; "
                            "leave out --fmu, --mapping and --params"])
@@ -492,7 +565,9 @@ def _number(value):
 def _yaml_number(value) -> str:
     if value is None:
         return ".nan"
-    return repr(float(value))
+    text = repr(float(value))
+    # YAML 1.1 (PyYAML) reads 1e-06 as a string: its floats need a dot
+    return text.replace("e", ".0e") if "e" in text and "." not in text else text
 
 
 def _show(value) -> str:

@@ -244,7 +244,8 @@ def test_a_full_disk_while_writing_is_one_line_and_leaves_nothing(tmp_path, caps
 def test_analyze_exits_by_every_verdict_it_prints(tmp_path, capsys):
     controller = tmp_path / "fast.yaml"
     data = yaml.safe_load((SHIPPED / "controllers" / "lqr-paper.yaml").read_text())
-    data.update(time="continuous", period=1.0e-300)
+    # sampled at 0.5 s the LQR's loop is unstable (a period of 1e-300 s is refused now)
+    data.update(time="continuous", period=0.5)
     controller.write_text(yaml.safe_dump(data))
     code, out, _ = run_cli(capsys, "analyze", str(controller))
     assert "the loop is UNSTABLE" in out and code == 1

@@ -1,6 +1,8 @@
 """Scenario-driven regression: baselines, tolerances, JUnit, other FMUs, bad input."""
 
 import json
+import math
+import os
 import shutil
 import subprocess
 import sys
@@ -192,3 +194,76 @@ def test_a_bad_mapping_file_is_one_line_naming_its_key(tmp_path, foreign_fmu, ca
     line = _one_line_exit_2(capsys, "regress", "paper-step", "--fmu", str(foreign_fmu),
                             "--mapping", str(mapping))
     assert line.startswith(f"error: {mapping}: ") and key in line, line
+
+
+@pytest.mark.parametrize("damage, expected", [
+    ("column all NaN", 2), ("column all inf", 2), ("a NaN in one row", 2), ("rows: []", 2),
+    ("rows cut short", 2), ("a column missing", 1), ("columns: [t] only", 1),
+    ("wrong at 198 of 200 points, one value 1e300", 1),
+])
+def test_a_damaged_baseline_never_passes(tmp_path, capsys, damage, expected):
+    """The trace of a baseline is validated (finite, complete, every signal), and one wild
+    value cannot widen the band to everything."""
+    import yaml
+
+    from furuta_cosim.regression import baseline_text
+
+    scenario = _own_scenario(tmp_path)
+    assert run_cli(capsys, "regress", str(scenario), "--update")[0] == 0
+    target = tmp_path / "baselines" / "step" / "mine.yaml"
+    document = yaml.safe_load(target.read_text())
+    trace = document["trace"]
+    columns, rows = trace["columns"], trace["rows"]
+    u = columns.index("theta1")
+    if damage == "column all NaN":
+        rows = [[*r[:u], None, *r[u + 1:]] for r in rows]
+    elif damage == "column all inf":
+        rows = [[*r[:u], math.inf, *r[u + 1:]] for r in rows]
+    elif damage == "a NaN in one row":
+        rows[100][u] = None
+    elif damage == "rows: []":
+        rows = []
+    elif damage == "rows cut short":
+        rows = rows[:120]
+    elif damage == "a column missing":
+        columns = [c for k, c in enumerate(columns) if k != u]
+        rows = [[v for k, v in enumerate(r) if k != u] for r in rows]
+    elif damage == "columns: [t] only":
+        columns, rows = ["t"], [[r[0]] for r in rows]
+    else:
+        assert len(rows) >= 200
+        rows = [[*r[:u], r[u] + 0.05, *r[u + 1:]] for r in rows]
+        rows[50][u] = 1e300
+        rows[0][u] -= 0.05
+        rows[-1][u] -= 0.05
+    document["trace"] = {"every": trace["every"], "columns": columns, "rows": rows}
+    target.write_text(baseline_text(document))
+    code, out, err = run_cli(capsys, "regress", str(scenario))
+    assert code == expected, (damage, out, err)
+    if expected == 2:
+        assert err.startswith(f"error: {target}: trace.rows"), err
+    else:
+        assert "REGRESSION step / mine: theta1" in out, out
+
+
+def test_regress_passes_under_other_blas_kernels():
+    """The shipped baselines do not rest on rounding: the same regress under two OpenBLAS
+    kernels (each rounds its reductions its own way) passes, the diverging bo-paper run on
+    noise-kalman included."""
+    import platform
+
+    flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    if platform.machine() in ("x86_64", "AMD64"):
+        kernels = ["Prescott", "Haswell" if " avx2" in flags else "Nehalem"]
+    else:
+        kernels = ["ARMV8", "NEOVERSEN1" if " asimddp" in flags else "CORTEXA57"]
+    for kernel in kernels:
+        env = {**os.environ, "OPENBLAS_CORETYPE": kernel}
+        done = subprocess.run([sys.executable, "-c", "import sys; from furuta_cosim.cli import main; "
+                               "sys.exit(main(['regress', '--workers', '1', '--json']))"],
+                              env=env, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, (kernel, done.stdout[-3000:], done.stderr[-3000:])
+        cases = json.loads(done.stdout)["cases"]
+        assert len(cases) == 2 * len(SHIPPED) and {c["status"] for c in cases} == {"pass"}
+        diverging = [c for c in cases if c["scenario"] == "noise-kalman" and c["controller"] == "bo-paper"]
+        assert diverging and diverging[0]["checked"] >= 10, diverging
