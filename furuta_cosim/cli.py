@@ -12,6 +12,7 @@ import sys
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_STOPPED = 75  # EX_TEMPFAIL: the run stopped before its end and --resume continues it
 
 
 def cmd_build_fmu(args) -> int:
@@ -293,8 +294,14 @@ def _print_table(scenario, results, document) -> None:
         print(f"SKIP  {note}")
 
 
+def _workers(args) -> int:
+    """--workers as given (checked), or one per core."""
+    from furuta_cosim.cosim.worker import check_workers, default_workers
+
+    return check_workers(default_workers() if args.workers is None else args.workers)
+
+
 def cmd_tune(args) -> int:
-    import os
     import time
     from pathlib import Path
 
@@ -311,13 +318,11 @@ def cmd_tune(args) -> int:
         shown = "none yet" if best is None else format(best, ".6g")
         bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
-    workers = args.workers or (os.cpu_count() or 1)
-    where = f"on Dask ({args.dask})" if args.dask else (f"{workers} worker processes" if workers > 1
-                                                        else "in this process")
-    print(f"tuning {spec.name} into {out}, {where}", file=sys.stderr)
+    workers = _workers(args)
     try:
         document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
-                        workers=workers, dask=args.dask, resume=args.resume, progress=progress)
+                        workers=workers, dask=args.dask, resume=args.resume, progress=progress,
+                        log=lambda line: print(line, file=sys.stderr))
     finally:
         bar.close()
     if args.json:
@@ -354,8 +359,6 @@ def _overrides(items) -> dict:
 
 
 def cmd_regress(args) -> int:
-    import os
-
     from pathlib import Path
 
     from furuta_cosim.files import output_file, output_folder, write_text
@@ -365,7 +368,7 @@ def cmd_regress(args) -> int:
         output_file(args.junit, "--junit")
     if args.output:
         output_folder(args.output)
-    workers = args.workers or (os.cpu_count() or 1)
+    workers = _workers(args)
     bar = _Progress(delay=0.0, unit="run")
     try:
         report = regress(args.paths, update=args.update, fmu=args.fmu, mapping=args.mapping,
@@ -430,13 +433,12 @@ def cmd_report(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    import os
     from pathlib import Path
 
     from furuta_cosim.reproduce import reproduce
 
     out = Path(args.output or "reproduction")
-    document = reproduce(out, budget=args.budget, workers=args.workers or (os.cpu_count() or 1),
+    document = reproduce(out, budget=args.budget, workers=_workers(args),
                          log=lambda line: print(line, file=sys.stderr))
     counts = document["counts"]
     print(", ".join(f"{n} {verdict}" for verdict, n in counts.items())
@@ -596,7 +598,7 @@ def _on_sigterm(signum, frame):
 def main(argv: list[str] | None = None) -> int:
     import signal
 
-    from furuta_cosim.errors import ConfigError, DesignError, FmuError
+    from furuta_cosim.errors import ConfigError, DesignError, FmuError, RunStopped
 
     args = build_parser().parse_args(argv)
     try:
@@ -612,6 +614,9 @@ def main(argv: list[str] | None = None) -> int:
     except FmuError as error:
         print(f"error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except RunStopped as error:
+        print(f"stopped: {error}", file=sys.stderr)
+        return EXIT_STOPPED
     except OSError as error:
         # a full disk, a folder that went away: one line; the atomic writers left nothing
         where = f"{error.filename}: " if error.filename else ""

@@ -9,6 +9,8 @@ goes on (a dead local worker pool is started again).
 
 from __future__ import annotations
 
+import os
+import re
 import traceback
 
 from furuta_cosim.cosim.worker import SINGLE_THREAD, start_pool
@@ -16,6 +18,27 @@ from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import TuningSpec
 
 _EVALUATORS: dict[str, Evaluator] = {}
+_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}")
+
+
+def check_address(address: str) -> str:
+    """``local`` or a Dask scheduler address (``tcp://host:8786``, ``host:8786``)."""
+    from furuta_cosim.errors import ConfigError
+
+    if address != "local" and not _ADDRESS.fullmatch(str(address)):
+        raise ConfigError([f"--dask: expected 'local' or a scheduler address such as "
+                           f"tcp://host:8786, got {address!r}"])
+    return address
+
+
+def dask_wait() -> float:
+    """Seconds a Dask run waits with no worker before it stops (resumable):
+    ``FURUTA_COSIM_DASK_WAIT``, default 60."""
+    try:
+        value = float(os.environ.get("FURUTA_COSIM_DASK_WAIT", "60"))
+    except ValueError:
+        value = 60.0
+    return value if value > 0 else 60.0
 
 
 def failed(spec: TuningSpec, error: str) -> Outcome:
@@ -46,6 +69,7 @@ class Serial(_Executor):
 
     def __init__(self, spec: TuningSpec, evaluator: Evaluator):
         self.spec, self.evaluator = spec, evaluator
+        self.where = "in this process"
 
     def submit(self, x):
         return x
@@ -70,6 +94,7 @@ class Processes(_Executor):
 
     def __init__(self, spec: TuningSpec, workers: int):
         self.spec, self.workers = spec, workers
+        self.where = f"{workers} worker processes"
         self._pool = None
 
     def _start(self):
@@ -136,31 +161,70 @@ class Dask(_Executor):
             from furuta_cosim.errors import ConfigError
 
             raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
-        self.spec = spec
+        from furuta_cosim.errors import ConfigError
+
+        self.spec, self.address = spec, check_address(address)
+        self.where = f"on Dask ({address})"
         if address == "local":
             self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                          dashboard_address=None, env=SINGLE_THREAD)
             self._client = Client(self._cluster)
         else:
             self._cluster = None
-            self._client = Client(address, timeout="30s")
+            try:
+                self._client = Client(address, timeout="30s")
+            except (OSError, TimeoutError) as error:
+                raise ConfigError([f"--dask {address}: no Dask scheduler answers there ({error})"]) from None
 
     def submit(self, x):
         return self._client.submit(evaluate_in_worker, self.spec, list(x), pure=False)
 
     def gather(self, pending) -> list[Outcome]:
-        outcomes = []
-        for future in pending:
+        return [self._result(future) for future in pending]
+
+    def _result(self, future) -> Outcome:
+        """One outcome; a lost scheduler, or no worker for dask_wait() seconds, stops the run
+        (RunStopped: the history so far is kept) instead of failing points or waiting forever."""
+        from concurrent.futures import CancelledError
+        from concurrent.futures import TimeoutError as Pending
+
+        from furuta_cosim.errors import RunStopped
+
+        idle, poll = 0.0, min(2.0, dask_wait())
+        while True:
             try:
-                outcomes.append(future.result())
-            except Exception as error:  # noqa: BLE001 (KilledWorker included)
-                outcomes.append(failed(self.spec, _describe(error)))
-        return outcomes
+                return future.result(timeout=poll)
+            except Pending:
+                pass
+            except CancelledError:
+                raise RunStopped(f"the Dask scheduler {self.address} was lost; what was evaluated "
+                                 "is kept: --resume continues the run") from None
+            except Exception as error:  # noqa: BLE001 (KilledWorker included: the point failed)
+                if self._client.status not in ("running", "connecting", "newly-created"):
+                    raise RunStopped(f"the Dask scheduler {self.address} was lost ({error}); "
+                                     "--resume continues the run") from None
+                return failed(self.spec, _describe(error))
+            if self._client.status != "running":
+                idle += poll
+                reason = f"the Dask scheduler {self.address} does not answer"
+            else:
+                try:
+                    workers = len(self._client.scheduler_info().get("workers", {}))
+                except Exception:  # noqa: BLE001
+                    workers = 0
+                idle = idle + poll if workers == 0 else 0.0
+                reason = f"the Dask cluster {self.address} has no worker"
+            if idle >= dask_wait():
+                raise RunStopped(f"{reason} (waited {idle:.0f} s, FURUTA_COSIM_DASK_WAIT); what "
+                                 "was evaluated is kept: --resume continues the run")
 
     def close(self) -> None:
-        self._client.close()
-        if self._cluster is not None:
-            self._cluster.close()
+        try:
+            self._client.close(timeout=10)
+            if self._cluster is not None:
+                self._cluster.close(timeout=10)
+        except Exception:  # noqa: BLE001 (a lost scheduler: nothing left to close cleanly)
+            pass
 
 
 def _describe(error: BaseException) -> str:

@@ -127,7 +127,8 @@ class Evaluator:
 
         spec, penalty = self.spec, self.spec.constraints.penalty
         scores, metrics, violation = [], {}, 0.0
-        for label, prepared, session in self.runs():
+        for label, prepared, _ in self.runs():
+            session = self._session(prepared)
             try:
                 F = prefilter(self.model, controller, prepared.tracked)
             except DesignError as error:
@@ -185,21 +186,47 @@ class Evaluator:
             from furuta_cosim.cosim.worker import session_for
             from furuta_cosim.scenario import load_scenario
 
+            from furuta_cosim.metrics import problem
+
+            spec = self.spec
             runs = []
-            for path in self.spec.objective.scenarios:
-                scenario = load_scenario(path)
-                for k, overrides in enumerate(self.spec.variants):
+            for j, path in enumerate(spec.objective.scenarios):
+                try:
+                    scenario = load_scenario(path)
+                except ConfigError as error:
+                    raise error.within(f"{spec.source}: objective.scenarios[{j}]") from None
+                for k, overrides in enumerate(spec.variants):
+                    where = f"{spec.source}: variants[{k}]"
                     try:
                         prepared = prepare(scenario, overrides=dict(overrides))
+                        session = session_for(prepared)
+                        session.reset(prepared.start)  # the FMU's own checks of the variant
                     except ConfigError as error:
-                        raise error.within(f"{self.spec.source}: variants[{k}]") from None
-                    for signal, _ in self.spec.constraints.max_abs:
-                        name, metric = _peak(signal).split(".")
-                        if metric not in prepared.metrics.get(name, ()):
-                            raise ConfigError([f"{self.spec.source}: constraints.max_abs.{signal}: "
+                        raise error.within(where) from None
+                    except FmuError as error:
+                        raise ConfigError([f"{where}: {error}"]) from None
+                    # every metric the spec names must be one this run records: a term on an
+                    # unrecorded metric would make every candidate, and the baseline, infeasible
+                    for signal, _ in spec.constraints.max_abs:
+                        if problem(_peak(signal), prepared.metrics):
+                            raise ConfigError([f"{spec.source}: constraints.max_abs.{signal}: "
                                                f"scenario {scenario.name} records no {signal} "
                                                f"(signals: {', '.join(prepared.metrics)})"])
-                    label = scenario.name + (f"[{k}]" if len(self.spec.variants) > 1 else "")
-                    runs.append((label, prepared, session_for(prepared)))
+                    named = [(f"objective.terms[{n}].metric", t.metric)
+                             for n, t in enumerate(spec.objective.terms)]
+                    named += [(f"constraints.no_worse_than.metrics.{m}", m)
+                              for m, _ in spec.constraints.no_worse_than]
+                    for key, metric in named:
+                        wrong = problem(metric, prepared.metrics)
+                        if wrong:
+                            raise ConfigError([f"{spec.source}: {key}: scenario {scenario.name}: {wrong}"])
+                    label = scenario.name + (f"[{k}]" if len(spec.variants) > 1 else "")
+                    runs.append((label, prepared, session))
             self._runs = runs
         return self._runs
+
+    def _session(self, prepared):
+        """This process's usable session on the run's FMU (a new one after a fatal error)."""
+        from furuta_cosim.cosim.worker import session_for
+
+        return session_for(prepared)

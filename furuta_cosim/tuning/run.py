@@ -64,27 +64,60 @@ class _Spent(Exception):
 
 
 class _History:
-    """history.jsonl: the records so far (after a crash, a torn last line is dropped), and
-    each new one appended and forced to disk before the run goes on."""
+    """history.jsonl: the records so far, and each new one appended and forced to disk before
+    the run goes on.
 
-    def __init__(self, path: Path, resume: bool):
+    On --resume every line is checked (its index, x inside the search space, a finite
+    objective): a damaged line is one error naming it, and nothing is dropped or changed. Only
+    a last line without its newline that does not parse is what a crash while writing leaves:
+    it is dropped, saying so. The file is never followed through a symbolic link."""
+
+    def __init__(self, path: Path, resume: bool, bounds, log=None):
         self.path = path
         self.records: list[dict] = []
+        flags = os.O_RDWR | os.O_CREAT | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0)
+        if path.is_symlink():
+            raise ConfigError([f"{path}: is a symbolic link; a run's history is a file of its own"])
         if resume:
-            good = 0
-            with path.open("rb") as handle:
-                for line in handle:
-                    try:
-                        record = json.loads(line)
-                    except ValueError:
-                        break
-                    if not isinstance(record, dict) or record.get("index") != len(self.records):
-                        break
-                    self.records.append(record)
-                    good += len(line)
-            with path.open("r+b") as handle:
-                handle.truncate(good)
-        self._handle = path.open("a")
+            self._read(bounds, log)
+        try:
+            handle = os.open(path, flags, 0o644)
+        except OSError as error:
+            raise ConfigError([f"{path}: cannot be opened ({error.strerror})"]) from None
+        self._handle = os.fdopen(handle, "a")
+
+    def _read(self, bounds, log) -> None:
+        raw = self.path.read_bytes()
+        if not raw:
+            return
+        lines = raw.split(b"\n")
+        complete = raw.endswith(b"\n")
+        if complete:
+            lines.pop()
+        for number, line in enumerate(lines, start=1):
+            last = number == len(lines)
+            problem = None
+            try:
+                record = json.loads(line)
+            except ValueError:
+                record, problem = None, "not JSON"
+            if problem and last and not complete:
+                # a crash while writing: the evaluation is not in the history, it runs again
+                with self.path.open("r+b") as handle:
+                    handle.truncate(len(raw) - len(line))
+                if log:
+                    log(f"{self.path}: line {number} was cut short by a crash: dropped, its "
+                        "evaluation runs again")
+                return
+            problem = problem or _damage(record, len(self.records), bounds)
+            if problem:
+                raise ConfigError([f"--resume: {self.path}: line {number}: {problem}; nothing was "
+                                   "changed: repair or remove that line (and the ones after it), "
+                                   "then --resume again"])
+            self.records.append(record)
+        if raw and not complete:
+            with self.path.open("ab") as handle:  # the last record lacked its newline
+                handle.write(b"\n")
 
     def append(self, record: dict) -> None:
         _append(self._handle, record)
@@ -92,6 +125,48 @@ class _History:
 
     def close(self) -> None:
         self._handle.close()
+
+
+def _damage(record, index: int, bounds) -> str | None:
+    """What is wrong with one history record, or None."""
+    if not isinstance(record, dict):
+        return "not a record"
+    if record.get("index") != index or isinstance(record.get("index"), bool):
+        return f"expected index {index}, got {record.get('index')!r}"
+    x = record.get("x")
+    if (not isinstance(x, list) or len(x) != len(bounds)
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                       for v in x)):
+        return f"x: expected {len(bounds)} finite numbers"
+    for k, (value, (low, high)) in enumerate(zip(x, bounds)):
+        slack = 1e-9 * (high - low)
+        if not low - slack <= value <= high + slack:
+            return f"x[{k}] = {value!r} is outside the search space [{low:g}, {high:g}]"
+    objective = record.get("objective")
+    if isinstance(objective, bool) or not isinstance(objective, (int, float)) or not math.isfinite(objective):
+        return f"objective: expected a finite number, got {objective!r}"
+    if not isinstance(record.get("feasible"), bool):
+        return f"feasible: expected true or false, got {record.get('feasible')!r}"
+    return None
+
+
+def _locked(folder: Path):
+    """An exclusive lock on the run directory (``.lock``), held for the whole run: a second
+    ``tune`` on the same folder is refused at once. The lock ends with the process, a killed
+    one too."""
+    import fcntl
+
+    try:
+        handle = os.open(folder / ".lock", os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    except OSError as error:
+        raise ConfigError([f"-o {folder}: cannot be locked ({error.strerror})"]) from None
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(handle)
+        raise ConfigError([f"-o {folder}: another tune is running in this folder; wait for it "
+                           "or choose another folder"]) from None
+    return handle
 
 
 def _same_run(folder: Path, identity: dict) -> None:
@@ -124,25 +199,36 @@ def _executor(spec, evaluator, workers: int, dask: str | None):
 def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
          n_calls: int | None = None, seed: int | None = None, workers: int = 1,
          dask: str | None = None, resume: bool = False,
-         progress: Callable[[int, int, float | None, int], None] | None = None) -> dict:
+         progress: Callable[[int, int, float | None, int], None] | None = None,
+         log: Callable[[str], None] | None = None) -> dict:
     """Run the spec's optimization into ``run_dir`` and return the summary document.
 
     ``workers`` > 1 evaluates in local processes, ``dask`` (a scheduler address or ``local``)
     on a Dask cluster; candidates are asked in synchronous batches of ``max(batch, workers)``.
     ``resume`` continues a run directory after a crash: the history is replayed into the
     optimizer and the run goes on until it holds exactly ``n_calls`` evaluations.
-    ``progress(done, total, best, feasible)`` is called after every batch."""
-    from threadpoolctl import threadpool_limits
+    ``progress(done, total, best, feasible)`` is called after every batch; ``log`` takes a
+    line about the run (a history line dropped after a crash). One run per directory at a
+    time (a lock); a Dask scheduler lost, or no worker for a minute, raises RunStopped with
+    the history kept for --resume."""
+    from furuta_cosim.cosim.worker import check_workers
+    from furuta_cosim.tuning.spec import MAX_CALLS, MAX_SEED
 
     method = method or spec.optimizer.method
-    n_calls = n_calls or spec.optimizer.n_calls
+    n_calls = spec.optimizer.n_calls if n_calls is None else n_calls
     seed = spec.optimizer.seed if seed is None else seed
+    # every option is checked before anything is made: a refused option leaves no folder
     if method not in METHODS:
         raise ConfigError([f"--optimizer: expected one of {', '.join(METHODS)}, got {method!r}"])
-    if n_calls < 1:
-        raise ConfigError([f"--n-calls: must be >= 1, got {n_calls}"])
-    if workers < 1:
-        raise ConfigError([f"--workers: must be >= 1, got {workers}"])
+    if isinstance(n_calls, bool) or not isinstance(n_calls, int) or not 1 <= n_calls <= MAX_CALLS:
+        raise ConfigError([f"--n-calls: expected a whole number from 1 to {MAX_CALLS}, got {n_calls}"])
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ConfigError([f"--seed: expected a whole number from 0 to 2^32 - 1, got {seed}"])
+    check_workers(workers)
+    if dask is not None:
+        from furuta_cosim.tuning.executors import check_address
+
+        check_address(dask)
     folder = output_folder(run_dir)
     if resume and not (folder / "history.jsonl").is_file():
         raise ConfigError([f"--resume: {folder} holds no tuning run (no history.jsonl)"])
@@ -158,34 +244,51 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
                 "method": method, "seed": seed}
     if resume:
         _same_run(folder, identity)
-    folder.mkdir(parents=True, exist_ok=True)
-    if not resume:
-        if spec.path:
-            write_text(folder / "spec.yaml", identity["spec"])
-        write_text(folder / "run.json", json.dumps({"method": method, "seed": seed}) + "\n")
-    history = _History(folder / "history.jsonl", resume)
-    if len(history.records) > n_calls:
-        history.close()
-        raise ConfigError([f"--resume: the run holds {len(history.records)} evaluations, more "
-                           f"than --n-calls {n_calls}"])
-    executor = _executor(spec, evaluator, workers, dask)
-    batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
-    clock = {"optimizer": 0.0, "evaluation": 0.0}
+    executor = _executor(spec, evaluator, workers, dask)  # a Dask scheduler is reached here
+    lock = history = None
     try:
-        # one BLAS thread for the optimizer, serial too: with workers they use the other cores;
-        # alone, at a GP's sizes (150 points), a second thread made each iteration twice as
-        # slow (tools/bench_tune.py, paper-spectral), and splitting BLAS reductions over
-        # threads rounds differently, so a seed's history would depend on the core count
-        with threadpool_limits(1):
-            if method == "de":
-                _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch,
-                                        clock, progress)
-            else:
-                _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock,
-                          progress)
+        folder.mkdir(parents=True, exist_ok=True)
+        lock = _locked(folder)
+        if not resume and (folder / "history.jsonl").exists():  # one that finished meanwhile
+            raise ConfigError([f"-o {folder}: holds a tuning run already; choose another "
+                               "folder or --resume it"])
+        if not resume:
+            if spec.path:
+                write_text(folder / "spec.yaml", identity["spec"])
+            write_text(folder / "run.json", json.dumps({"method": method, "seed": seed}) + "\n")
+        history = _History(folder / "history.jsonl", resume, evaluator.space.bounds, log)
+        if log:
+            log(f"tuning {spec.name} into {folder}, {executor.where}")
+        if len(history.records) > n_calls:
+            raise ConfigError([f"--resume: the run holds {len(history.records)} evaluations, "
+                               f"more than --n-calls {n_calls}"])
+        return _search(spec, folder, evaluator, executor, history, n_calls, seed, method,
+                       workers, dask, progress)
     finally:
         executor.close()
-        history.close()
+        if history is not None:
+            history.close()
+        if lock is not None:
+            os.close(lock)
+
+
+def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, workers, dask,
+            progress) -> dict:
+    from threadpoolctl import threadpool_limits
+
+    batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
+    clock = {"optimizer": 0.0, "evaluation": 0.0}
+    # one BLAS thread for the optimizer, serial too: with workers they use the other cores;
+    # alone, at a GP's sizes (150 points), a second thread made each iteration twice as
+    # slow (tools/bench_tune.py, paper-spectral), and splitting BLAS reductions over
+    # threads rounds differently, so a seed's history would depend on the core count
+    with threadpool_limits(1):
+        if method == "de":
+            _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch,
+                                    clock, progress)
+        else:
+            _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock,
+                      progress)
     return _finish(spec, folder, evaluator, history.records, n_calls, method, seed, clock)
 
 

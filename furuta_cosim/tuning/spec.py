@@ -15,7 +15,7 @@ strictly as scenarios (every problem at once, with file and key; unknown keys re
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from furuta_cosim import paths
@@ -56,6 +56,11 @@ class Constraints:
 
 # log and lqr bounds are exponents of 10, at most this large in magnitude
 MAX_DECADES = 12
+# limits that keep a spec from taking the machine (each refused with one line, documented)
+MAX_STATES = 20            # controller states n_xc
+MAX_CALLS = 100_000        # evaluations of one run
+MAX_SEED = 2**32 - 1       # numpy's and scipy's seeds
+MAX_PENALTY = 1.0e9        # an infeasible score stays finite (penalty * 2 plus violations)
 
 
 @dataclass(frozen=True)
@@ -107,14 +112,15 @@ def load_spec(name: str | Path) -> TuningSpec:
         check.done()
     controller = check.mapping(top.get("controller", {}), "controller", required=("n_xc", "model"),
                                optional=("time", "period")) or {}
-    n_xc = check.number(controller.get("n_xc"), "controller.n_xc", integer=True, minimum=0) \
-        if "n_xc" in controller else None
+    n_xc = check.number(controller.get("n_xc"), "controller.n_xc", integer=True, minimum=0,
+                        maximum=MAX_STATES) if "n_xc" in controller else None
     time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
-    period = check.number(controller.get("period", 0.002), "controller.period", positive=True)
+    period = check.period(controller.get("period", 0.002), "controller.period")
     model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
     check.done()
     try:
-        model = load_model(model_name)
+        model = load_model(model_name, beside=path.parent)
+        model_name = _portable_model(model_name, path.parent)
     except ConfigError as error:
         raise error.within(f"{path}: controller.model") from None
     n_x, n_u = model.n, model.B.shape[1]
@@ -128,8 +134,20 @@ def load_spec(name: str | Path) -> TuningSpec:
     constraints = _constraints(check, top.get("constraints", {}))
     optimizer = _optimizer(check, top.get("optimizer", {}))
     variants = _variants(check, top.get("variants", [{}]))
-    baselines = tuple(check.names(top["baselines"], "baselines") or ()) if "baselines" in top else ()
-    name = check.file_name(top["name"], "name") if "name" in top else path.stem
+    baselines = ()
+    if "baselines" in top:
+        baselines = tuple(_controller_file(check, name, f"baselines[{k}]", model)
+                          for k, name in enumerate(check.names(top["baselines"], "baselines") or ()))
+    if constraints.baseline:
+        constraints = replace(constraints, baseline=_controller_file(
+            check, constraints.baseline, "constraints.no_worse_than.controller", model))
+    if objective and objective.type == "spectral":
+        for key in ("max_abs", "no_worse_than", "requirements"):
+            if key in (top.get("constraints") or {}):
+                check.fail(f"constraints.{key}", "the spectral objective runs no co-simulation: "
+                                                 "this constraint would never be checked")
+    name = (check.file_name(top["name"], "name") if "name" in top
+            else check.file_name(path.stem, "name (taken from the file name)"))
     description = check.text(top["description"], "description") if "description" in top else ""
     if optimizer and optimizer.batch > optimizer.n_calls:
         check.fail("optimizer.batch", f"larger than the budget optimizer.n_calls ({optimizer.n_calls})")
@@ -140,6 +158,41 @@ def load_spec(name: str | Path) -> TuningSpec:
     check.done()
     return TuningSpec(name, description, path, n_xc, time == "discrete", period, model_name, blocks,
                       objective, constraints, optimizer, variants, baselines)
+
+
+def _portable_model(name: str, folder: Path) -> str:
+    """The spec's model as the run's files record it: a shipped name as it is, anything else
+    (a file, a name of the spec's own tree) as the absolute path it resolved to, so that
+    best.yaml in a run directory names the same model."""
+    from furuta_cosim.fmu.plants import plant_path
+
+    kind, _, parameter_set = name.partition(":")
+    if kind == "derived":
+        if not parameter_set:
+            return name
+        return f"derived:{_portable_model(parameter_set, folder)}"
+    path = plant_path(name, beside=folder).resolve()
+    return name if path == plant_path(name).resolve() else str(path)
+
+
+def _controller_file(check: Checker, name: str, key: str, model) -> str:
+    """A controller the spec names (resolved beside the spec; kept as an absolute path), checked
+    to be one of this plant's: a controller of another plant is refused here, not scored as a
+    failed evaluation after the run."""
+    from furuta_cosim.controllers import load_controller
+
+    folder = Path(check.source).parent
+    try:
+        cfile = load_controller(name, folder)
+    except ConfigError as error:
+        check.fail(key, "; ".join(error.problems))
+        return name
+    controller = cfile.controller
+    n_u = model.B.shape[1]
+    if controller.Dc.shape != (n_u, model.n):
+        check.fail(key, f"{cfile.source} is a controller of {controller.Dc.shape[1]} states and "
+                        f"{controller.Dc.shape[0]} inputs; the model {model.name} has {model.n} and {n_u}")
+    return str(cfile.path.resolve())
 
 
 def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | None:
@@ -190,9 +243,10 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | N
         return None
     sign, R, entries = 1.0, 1.0, None
     if kind == "log":
-        sign = check.number(section.get("sign", 1), f"{where}.sign") or 1.0
-        if sign not in (-1.0, 1.0):
+        sign = check.number(section.get("sign", 1), f"{where}.sign")
+        if sign is not None and sign not in (-1.0, 1.0):
             check.fail(f"{where}.sign", f"expected 1 or -1, got {sign:g}")
+        sign = sign or 1.0
     if kind == "lqr":
         R = check.number(section.get("R", 1.0), f"{where}.R", positive=True) or 1.0
     if "entries" in section:
@@ -246,6 +300,8 @@ def _objective(check: Checker, value) -> Objective | None:
             weight = check.number(term.get("weight", 1.0), f"objective.terms[{k}].weight", minimum=0.0)
             if metric and weight is not None:
                 terms.append(Term(metric, weight))
+        if terms and len(terms) == len(raw) and not any(t.weight > 0 for t in terms):
+            check.fail("objective.terms", "every weight is 0: nothing to minimize")
     aggregate = check.string(section.get("aggregate", "worst"), "objective.aggregate", AGGREGATES)
     # resolved once, here: a file beside the spec, or a name in scenarios/
     resolved = []
@@ -275,7 +331,8 @@ def _constraints(check: Checker, value) -> Constraints:
             check.fail(f"constraints.{key}", f"expected true or false, got {section[key]!r}")
         flags[key] = bool(section.get(key, key == "requirements"))
     bounds = check.numbers(section.get("max_abs", {}), "constraints.max_abs", positive=True)
-    penalty = check.number(section.get("penalty", 1.0e3), "constraints.penalty", positive=True)
+    penalty = check.number(section.get("penalty", 1.0e3), "constraints.penalty", positive=True,
+                           maximum=MAX_PENALTY)
     baseline, factors = None, ()
     if "no_worse_than" in section:
         relative = check.mapping(section["no_worse_than"], "constraints.no_worse_than",
@@ -291,12 +348,12 @@ def _constraints(check: Checker, value) -> Constraints:
 
 
 # the optimizer's numeric settings and their checks (the defaults: OptimizerSettings)
-_OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1),
+_OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1, maximum=MAX_CALLS),
                       "n_initial_points": dict(integer=True, minimum=1),
                       "xi": dict(minimum=0.0),
-                      "seed": dict(integer=True, minimum=0),
-                      "batch": dict(integer=True, minimum=1),
-                      "gp_restarts": dict(integer=True, minimum=0)}
+                      "seed": dict(integer=True, minimum=0, maximum=MAX_SEED),
+                      "batch": dict(integer=True, minimum=1, maximum=1000),
+                      "gp_restarts": dict(integer=True, minimum=0, maximum=20)}
 
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
