@@ -28,8 +28,9 @@ from furuta_cosim.config import Checker, load_yaml
 from furuta_cosim.cosim.evaluation import Compiled, runs, scenario_controllers
 from furuta_cosim.cosim.master import Prepared, prepare
 from furuta_cosim.cosim.result import RunResult
+from furuta_cosim.documents import dumps, json_safe
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.files import write_text
+from furuta_cosim.files import output_file, output_folder, write_text
 from furuta_cosim.scenario import Scenario, load_mapping, load_scenario
 
 FORMAT = 1
@@ -93,8 +94,8 @@ class Case:
     def to_dict(self) -> dict:
         return {"scenario": self.scenario, "controller": self.controller, "status": self.status,
                 "baseline": str(self.baseline), "checked": self.checked, "wall_time": self.wall_time, "notes": self.notes,
-                "differences": [{"kind": d.kind, "name": d.name, "expected": _json(d.expected),
-                                 "got": _json(d.got), "detail": d.detail} for d in self.differences]}
+                "differences": [{"kind": d.kind, "name": d.name, "expected": json_safe(d.expected),
+                                 "got": json_safe(d.got), "detail": d.detail} for d in self.differences]}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -408,6 +409,7 @@ def scenario_files(names: Sequence[str | Path] | None) -> list[Path]:
 def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             fmu: str | Path | None = None, mapping: str | Path | None = None,
             overrides: dict | None = None, workers: int = 1, baselines: Path | None = None,
+            junit: str | Path | None = None, output: str | Path | None = None,
             progress: Callable[[int, int], None] | None = None) -> Report:
     """Run every controller of every scenario named and compare each with its baseline
     (``update``: write the baselines instead, reporting what changed).
@@ -415,13 +417,19 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     ``fmu`` (with ``mapping``, a plant-mapping file, for another tool's FMU) and ``overrides``
     (FMU parameters) run the same scenarios on another plant; they cannot be combined with
     ``update``. Bad input of any kind, a corrupt baseline or one made from another version of
-    its files among it, is a ConfigError raised before any baseline is written.
+    its files among it, is a ConfigError raised before any baseline is written. ``junit``:
+    write the report as JUnit XML there; ``output``: a folder for ``regress.json`` and
+    ``regress.xml`` (both checked before anything runs).
     """
     import time
 
     from furuta_cosim.cosim.worker import check_workers
 
     check_workers(workers)
+    if junit:
+        output_file(junit, "--junit")
+    if output:
+        output_folder(output)
     if baselines is not None and Path(baselines).exists() and not Path(baselines).is_dir():
         raise ConfigError([f"--baselines {baselines}: is a file; name the folder that holds "
                            "<scenario>/<controller>.yaml baselines"])
@@ -484,8 +492,14 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     import fmpy
 
     versions = {"furuta-cosim": __version__, "fmpy": fmpy.__version__, "numpy": np.__version__}
-    return Report(cases, update, str(fmu) if fmu else None, dict(overrides or {}),
-                  time.perf_counter() - started, versions)
+    report = Report(cases, update, str(fmu) if fmu else None, dict(overrides or {}),
+                    time.perf_counter() - started, versions)
+    if junit:
+        write_junit(report, junit)
+    if output:
+        write_text(Path(output) / "regress.json", dumps(report.to_dict(), indent=1))
+        write_junit(report, Path(output) / "regress.xml")
+    return report
 
 
 def _run_all(jobs, workers: int, progress) -> list[RunResult]:
@@ -572,12 +586,6 @@ def _yaml_number(value) -> str:
 
 def _show(value) -> str:
     return format(value, ".6g") if isinstance(value, float) else str(value)
-
-
-def _json(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _brief(value) -> str:

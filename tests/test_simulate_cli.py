@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from furuta_cosim.cli import _Progress
+from furuta_cosim.progress import Progress
 from furuta_cosim.cosim import evaluate, prepare, simulate
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.report.figures import figure_of_runs
@@ -30,7 +30,7 @@ def test_long_runs_report_progress_in_chunks():
 
 
 def test_progress_lines_when_the_output_is_not_a_terminal(capsys):
-    progress = _Progress(delay=0.0, every=0.0)
+    progress = Progress(delay=0.0, every=0.0)
     progress("lqr", 50, 100)
     progress("lqr", 100, 100)
     assert capsys.readouterr().err.splitlines() == ["  lqr: 50/100 steps (50%)", "  lqr: 100/100 steps (100%)"]

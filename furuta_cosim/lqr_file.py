@@ -1,0 +1,109 @@
+"""An LQR design as a controller file: the one place that turns a model, weights and a period
+into a checked, provenanced controller file (``furuta-cosim design lqr`` and
+``tools/regenerate_controllers.py`` both call :func:`design_lqr_file`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from furuta_cosim.controllers import ControllerFile, default_output, save_controller
+from furuta_cosim.defaults import PAPER_PERIOD
+from furuta_cosim.design import analyze, lqr, prefilter
+from furuta_cosim.design.analysis import Analysis
+from furuta_cosim.design.linear import LinearModel
+from furuta_cosim.errors import ConfigError, DesignError
+from furuta_cosim.files import output_file
+from furuta_cosim.fmu.plants import plant_path
+from furuta_cosim.models import load_model
+
+
+@dataclass
+class Design:
+    cfile: ControllerFile
+    model: LinearModel
+    analysis: Analysis
+    path: Path | None          # where the file was written, if it was
+
+
+def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
+                    R: Sequence[float] | None = None, period: float = PAPER_PERIOD,
+                    continuous: bool = False, name: str | None = None, track: str | None = None,
+                    description: str = "", output: str | Path | None = None) -> Design:
+    """An LQR on ``model_name`` (dlqr at ``period``, or the continuous ARE), its prefilter for
+    ``track`` and its analysis, written to ``output`` when given.
+
+    ``Q`` and ``R`` are weights as on the command line: one value (times the identity), n
+    diagonal values or n*n entries (None: python-control's defaults of :func:`lqr`, the paper's
+    for the pendulum). The controller is named ``name``, else after the output file, else
+    ``lqr``; the file records the model as it was given (a path made absolute), so that
+    ``analyze`` finds it again. Problems name the flag or file at fault (ConfigError,
+    DesignError).
+    """
+    if not continuous and not (isinstance(period, (int, float)) and period > 0):
+        raise DesignError(f"--period: must be > 0, got {period}")
+    if output:
+        output_file(output)
+    model = load_model(model_name)
+    weights = (_weights(Q, model.n, "--Q"), _weights(R, model.B.shape[1], "--R"))
+    try:
+        controller = lqr(model, *weights, None if (continuous or model.discrete) else period)
+    except DesignError as error:
+        if error.key == "A, B":
+            raise ConfigError([f"{_model_source(model_name)}: A, B: {error}"]) from None
+        if error.key:
+            raise DesignError(f"--{error.key}: {error}") from None
+        raise
+    name = name or (Path(output).stem if output else "lqr")
+    controller = dataclasses.replace(controller, name=name)
+    tracked = track or default_output(model)
+    try:
+        F = prefilter(model, controller, tracked)
+    except DesignError as error:
+        raise DesignError(f"--track {tracked}: {error}") from None
+    cfile = ControllerFile(controller, controller.period or (0.0 if continuous else period),
+                           _recorded_model(model_name), tracked, F, description,
+                           provenance=controller.provenance)
+    path = save_controller(cfile, output) if output else None
+    return Design(cfile, model, analyze(model, controller), path)
+
+
+def _recorded_model(model_name: str) -> str:
+    """The model as a controller file records it: a name as it is, a file as an absolute path
+    (``derived:variant.yaml`` given from another folder could not be found again)."""
+    kind, colon, rest = str(model_name).partition(":")
+    if kind == "derived" and colon:
+        return f"derived:{_recorded_model(rest)}"
+    path = Path(model_name)
+    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+        return str(path.resolve())
+    return str(model_name)
+
+
+def _model_source(model_name: str) -> str:
+    """Where a model comes from, for messages: its plant file, or its name."""
+    if str(model_name).startswith("derived"):
+        return str(model_name)
+    try:
+        return str(plant_path(model_name))
+    except ConfigError:
+        return str(model_name)
+
+
+def _weights(values, n: int, flag: str):
+    """A weight from the command line: one value (times the identity), n diagonal values or n*n
+    entries; None when not given."""
+    if not values:
+        return None
+    if len(values) == 1:
+        return values[0] * np.eye(n)
+    if len(values) == n:
+        return np.diag(values)
+    if len(values) == n * n:
+        return np.reshape(values, (n, n))
+    expected = "1 value" if n == 1 else f"{n} diagonal values or {n * n} entries"
+    raise DesignError(f"{flag}: expected {expected}, got {len(values)}")
