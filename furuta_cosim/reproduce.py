@@ -9,7 +9,6 @@ left empty. Written as ``reproduction.md`` and ``reproduction.html`` (self-conta
 
 from __future__ import annotations
 
-import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,12 +17,14 @@ from typing import Callable
 import numpy as np
 
 from furuta_cosim import paths
+from furuta_cosim.defaults import PAPER_PERIOD
+from furuta_cosim.design.lqr import PAPER_Q, PAPER_R
+from furuta_cosim.documents import dumps
 from furuta_cosim.files import output_folder, write_text
 
 BUDGETS = {"quick": 30, "full": 150}
 READINGS = "docs/paper-readings.md"
 PRINTED_K = [-0.31, -5.26, 70.74, 8.92, 0.17]
-Q_PAPER, R_PAPER = [1, 10, 100, 10, 1], [10]
 
 
 @dataclass
@@ -95,8 +96,8 @@ def lqr_claims() -> list[Claim]:
     from furuta_cosim.models import load_model
 
     model = load_model("paper-printed")
-    discrete = lqr(model, np.diag(Q_PAPER), np.diag(R_PAPER), 0.002).Dc[0]
-    continuous = lqr(model, np.diag(Q_PAPER), np.diag(R_PAPER), None).Dc[0]
+    discrete = lqr(model, np.diag(PAPER_Q), np.diag([PAPER_R]), PAPER_PERIOD).Dc[0]
+    continuous = lqr(model, np.diag(PAPER_Q), np.diag([PAPER_R]), None).Dc[0]
     truncated = _truncate(discrete, PRINTED_K)
     same = truncated == PRINTED_K
     worst = float(np.max(np.abs(continuous - PRINTED_K) / np.abs(PRINTED_K)))
@@ -269,5 +270,5 @@ def reproduce(output: str | Path, *, budget: str = "quick", workers: int = 1,
     body = markdown_to_html(text) + "".join(figure(p, p.stem) for p in sorted(figures.glob("*.svg")))
     write_text(out / "reproduction.html", page("furuta-cosim: paper reproduction", body))
     document = {"budget": budget, "claims": [c.__dict__ for c in claims], "counts": counts}
-    write_text(out / "reproduction.json", json.dumps(document, indent=1))
+    write_text(out / "reproduction.json", dumps(document, indent=1))
     return document

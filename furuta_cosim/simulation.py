@@ -12,6 +12,7 @@ from typing import Callable, Sequence
 
 from furuta_cosim.cosim.evaluation import runs, scenario_controllers
 from furuta_cosim.cosim.master import prepare
+from furuta_cosim.documents import dumps
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import output_folder, write_text
 from furuta_cosim.scenario import Scenario
@@ -96,7 +97,7 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
                 "unchecked": notes, "figures": [str(f) for f in figures],
                 "files": sorted(written + ["metrics.json"]),
                 "passed": all(r.passed for r in results.values())}
-    write_text(out / "metrics.json", json.dumps(document, indent=2, allow_nan=False) + "\n")
+    write_text(out / "metrics.json", dumps(document, indent=2) + "\n")
     for name in earlier - set(document["files"]):
         (out / name).unlink(missing_ok=True)  # an earlier run's file this run did not write
     return document, results

@@ -12,10 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from furuta_cosim.cosim.trace import Trace
-
-
-def _finite(value):
-    return value if value is None or math.isfinite(value) else None
+from furuta_cosim.documents import json_safe
 
 
 @dataclass
@@ -41,9 +38,8 @@ class RunResult:
         return {"scenario": self.scenario, "controller": self.controller, "failure": self.failure,
                 "passed": self.passed, "wall_time": self.wall_time, "time_unit": self.time_unit,
                 "tracked": self.trace.tracked, "input": self.trace.input_name,
-                "metrics": {k: _finite(v) for k, v in self.metrics.items()},
-                "requirements": {k: {**v, "value": _finite(v["value"])}
-                                 for k, v in self.requirements.items()},
+                "metrics": json_safe(self.metrics),
+                "requirements": json_safe(self.requirements),
                 "trace": str(trace_file) if trace_file else None}
 
     def save(self, folder: str | Path, *, every: int = 1, trace: bool = True) -> dict:

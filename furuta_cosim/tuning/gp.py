@@ -45,10 +45,15 @@ class Memory:
             self.frozen = False
 
 
+# the kernel hyperparameters are fitted at every this many tells (conditioning between), from
+# the last kernel and a spec's ``optimizer.gp_restarts`` random starts besides
+REFIT_EVERY = 5
+
+
 class WarmGaussianProcess(GaussianProcessRegressor):
     def __init__(self, kernel=None, *, alpha=0.0, optimizer="fmin_l_bfgs_b", n_restarts_optimizer=0,
                  normalize_y=True, copy_X_train=True, random_state=None, noise=1e-10,
-                 refit_every=5, memory=None):
+                 refit_every=REFIT_EVERY, memory=None):
         super().__init__(kernel=kernel, alpha=alpha, optimizer=optimizer,
                          n_restarts_optimizer=n_restarts_optimizer, normalize_y=normalize_y,
                          copy_X_train=copy_X_train, random_state=random_state, noise=noise)

@@ -13,12 +13,14 @@ a peak is over its bound, ...), so the Gaussian process still learns which way i
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from furuta_cosim.design.controller import GeneralizedController, augmented, discretize_controller
+from furuta_cosim.documents import json_safe
 from furuta_cosim.errors import ConfigError, DesignError, FmuError
 from furuta_cosim.tuning.spec import TuningSpec
 from furuta_cosim.tuning.space import Space
@@ -34,6 +36,7 @@ class Outcome:
     metrics: dict = field(default_factory=dict)     # "<scenario>[<variant>]" -> {metric: value}
     error: str | None = None
     wall_time: float = 0.0
+    worker: int | None = None       # the process that evaluated it (None: unknown, it died)
 
 
 def _peak(signal: str) -> str:
@@ -87,6 +90,7 @@ class Evaluator:
         started = time.perf_counter()
         outcome = self._score(x)
         outcome.wall_time = time.perf_counter() - started
+        outcome.worker = os.getpid()
         return outcome
 
     def _score(self, x) -> Outcome:
@@ -138,7 +142,7 @@ class Evaluator:
                 result = evaluate(prepared, session, compile_controller(prepared, cfile))
             except (ConfigError, FmuError) as error:
                 return Outcome(penalty * 2, False, constraints, metrics, f"{label}: {error}")
-            metrics[label] = {k: (v if math.isfinite(v) else None) for k, v in result.metrics.items()}
+            metrics[label] = json_safe(result.metrics)
             if result.failure:
                 violation += 1.0
                 constraints[f"{label}.diverged"] = True

@@ -26,12 +26,11 @@ from skopt import Optimizer
 from skopt.space import Real, Space
 from sklearn.utils import check_random_state
 
+from furuta_cosim.tuning.gp import REFIT_EVERY, Memory, WarmGaussianProcess
+
 # Expected Improvement maximized from the best of this many sampled points by this many L-BFGS
 # starts (scikit-optimize's defaults: 10,000 and 5; tools/bench_tune.py compares)
 ACQUISITION = {"n_points": 2000, "n_restarts_optimizer": 2}
-# the GP's kernel hyperparameters are fitted at every this many tells (conditioning between),
-# from the last kernel and a spec's ``optimizer.gp_restarts`` random starts besides
-REFIT_EVERY = 5
 
 _UNSET = object()
 
@@ -117,7 +116,6 @@ def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int
         return RandomSearch(dimensions, seed)
     from skopt.utils import cook_estimator
 
-    from furuta_cosim.tuning.gp import Memory, WarmGaussianProcess
 
     # scikit-optimize's GP with its default settings spends most of a run refitting kernel
     # hyperparameters from three starts at every tell; a fit every fifth tell (from the last

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, load_yaml, resolve_file
+from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.scenario import scenario_path
 from furuta_cosim.tuning.space import KINDS, Block
@@ -115,7 +116,7 @@ def load_spec(name: str | Path) -> TuningSpec:
     n_xc = check.number(controller.get("n_xc"), "controller.n_xc", integer=True, minimum=0,
                         maximum=MAX_STATES) if "n_xc" in controller else None
     time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
-    period = check.period(controller.get("period", 0.002), "controller.period")
+    period = check.period(controller.get("period", PAPER_PERIOD), "controller.period")
     model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
     check.done()
     try:
@@ -302,7 +303,8 @@ def _objective(check: Checker, value) -> Objective | None:
                 terms.append(Term(metric, weight))
         if terms and len(terms) == len(raw) and not any(t.weight > 0 for t in terms):
             check.fail("objective.terms", "every weight is 0: nothing to minimize")
-    aggregate = check.string(section.get("aggregate", "worst"), "objective.aggregate", AGGREGATES)
+    aggregate = check.string(section.get("aggregate", Objective.aggregate), "objective.aggregate",
+                             AGGREGATES)
     # resolved once, here: a file beside the spec, or a name in scenarios/
     resolved = []
     for k, name in enumerate(scenarios or []):
@@ -315,7 +317,7 @@ def _objective(check: Checker, value) -> Objective | None:
             check.fail(f"objective.scenarios[{k}]", f"{name}: no such scenario file")
             continue
         resolved.append(str(path))
-    return Objective("scenarios", tuple(resolved), tuple(terms), aggregate or "worst")
+    return Objective("scenarios", tuple(resolved), tuple(terms), aggregate or Objective.aggregate)
 
 
 def _constraints(check: Checker, value) -> Constraints:
@@ -331,7 +333,7 @@ def _constraints(check: Checker, value) -> Constraints:
             check.fail(f"constraints.{key}", f"expected true or false, got {section[key]!r}")
         flags[key] = bool(section.get(key, key == "requirements"))
     bounds = check.numbers(section.get("max_abs", {}), "constraints.max_abs", positive=True)
-    penalty = check.number(section.get("penalty", 1.0e3), "constraints.penalty", positive=True,
+    penalty = check.number(section.get("penalty", Constraints.penalty), "constraints.penalty", positive=True,
                            maximum=MAX_PENALTY)
     baseline, factors = None, ()
     if "no_worse_than" in section:
@@ -344,7 +346,7 @@ def _constraints(check: Checker, value) -> Constraints:
             factors = tuple((metric, ratio) for metric, ratio in ratios.items()
                             if check.metric(metric, f"constraints.no_worse_than.metrics.{metric}"))
     return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
-                       flags["requirements"], penalty or 1.0e3, baseline, factors)
+                       flags["requirements"], penalty or Constraints.penalty, baseline, factors)
 
 
 # the optimizer's numeric settings and their checks (the defaults: OptimizerSettings)
