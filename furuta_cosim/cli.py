@@ -7,11 +7,13 @@ Heavy modules are imported inside the handlers so that ``--help`` stays instant.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+
+from furuta_cosim.documents import dumps
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a command whose reader closed
 EXIT_STOPPED = 75  # EX_TEMPFAIL: the run stopped before its end and --resume continues it
 
 
@@ -40,7 +42,7 @@ def cmd_linearize(args) -> int:
     result = linearize(fmu, parameters=dict(plant.parameters),
                        inputs={name: 0.0 for name in args.inputs} if args.inputs else None)
     if args.json:
-        print(json.dumps(result.as_dict(), allow_nan=False))
+        print(dumps(result.as_dict()))
         return 0
     import numpy as np
 
@@ -70,93 +72,34 @@ def _pairs(values) -> list:
     return [[float(z.real), float(z.imag)] for z in values]
 
 
-def _model_source(model_name: str) -> str:
-    """Where a model comes from, for messages: its plant file, or its name."""
-    from furuta_cosim.errors import ConfigError
-    from furuta_cosim.fmu.plants import plant_path
-
-    if model_name.startswith("derived"):
-        return model_name
-    try:
-        return str(plant_path(model_name))
-    except ConfigError:
-        return model_name
-
-
-def _weights(values, n: int, flag: str):
-    """A weight from the command line: one value (times the identity), n diagonal values or n*n
-    entries; None when not given."""
-    import numpy as np
-
-    from furuta_cosim.errors import DesignError
-
-    if not values:
-        return None
-    if len(values) == 1:
-        return values[0] * np.eye(n)
-    if len(values) == n:
-        return np.diag(values)
-    if len(values) == n * n:
-        return np.reshape(values, (n, n))
-    expected = "1 value" if n == 1 else f"{n} diagonal values or {n * n} entries"
-    raise DesignError(f"{flag}: expected {expected}, got {len(values)}")
-
-
 def cmd_design_lqr(args) -> int:
-    import dataclasses
-
     import numpy as np
 
-    from furuta_cosim.controllers import ControllerFile, default_output, save_controller
-    from furuta_cosim.design import analyze, lqr, prefilter
     from furuta_cosim.design.linear import time_text
-    from furuta_cosim.errors import ConfigError, DesignError
-    from furuta_cosim.models import load_model
+    from furuta_cosim.lqr_file import design_lqr_file
 
-    if not args.continuous and not args.period > 0:
-        raise DesignError(f"--period: must be > 0, got {args.period}")
-    if args.output:
-        from furuta_cosim.files import output_file
-
-        output_file(args.output)
-    model = load_model(args.model)
-    Q = _weights(args.Q, model.n, "--Q")
-    R = _weights(args.R, model.B.shape[1], "--R")
-    try:
-        controller = lqr(model, Q, R, None if (args.continuous or model.discrete) else args.period)
-    except DesignError as error:
-        if error.key == "A, B":
-            raise ConfigError([f"{_model_source(args.model)}: A, B: {error}"]) from None
-        if error.key:
-            raise DesignError(f"--{error.key}: {error}") from None
-        raise
-    controller = dataclasses.replace(controller, name=args.name)
-    output = args.track or default_output(model)
-    try:
-        F = prefilter(model, controller, output)
-    except DesignError as error:
-        raise DesignError(f"--track {output}: {error}") from None
-    analysis = analyze(model, controller)
-    cfile = ControllerFile(controller, controller.period or (0.0 if args.continuous else args.period),
-                           model.name, output, F, args.description, provenance=controller.provenance)
-    if args.output:
-        path = save_controller(cfile, args.output)
-        print(f"wrote {path}", file=sys.stderr)
+    design = design_lqr_file(args.model, Q=args.Q, R=args.R, period=args.period,
+                             continuous=args.continuous, name=args.name, track=args.track,
+                             description=args.description, output=args.output)
+    if design.path:
+        print(f"wrote {design.path}", file=sys.stderr)
+    cfile, model, analysis = design.cfile, design.model, design.analysis
+    controller = cfile.controller
     K = controller.K
     result = {"K": K[0].tolist() if K.shape[0] == 1 else K.tolist(),
               "closed_loop_eigenvalues": _pairs(analysis.eigenvalues),
               "time": "discrete" if controller.discrete else "continuous",
               "period": controller.period, "model": model.name,
-              "stable": analysis.stable, "prefilter": {"output": output, "F": F},
+              "stable": analysis.stable, "prefilter": {"output": cfile.tracked_output, "F": cfile.F},
               "method": controller.provenance["method"]}
     if args.json:
-        print(json.dumps(result))
+        print(dumps(result))
     else:
         print(f"{result['method']} on {model.name}"
               + (f" at period {time_text(controller.period, model.time_unit, 'g')}" if controller.discrete else ""))
         print("K = [" + " ".join(f"{k:.6g}" for k in np.ravel(K)) + "]")
         print("closed-loop eigenvalues: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
-        print(f"prefilter for {output}: F = {F:.6g}")
+        print(f"prefilter for {cfile.tracked_output}: F = {cfile.F:.6g}")
     return 0
 
 
@@ -175,14 +118,15 @@ def cmd_analyze(args) -> int:
     model_name = args.model or cfile.model
     if not model_name:
         raise ConfigError([f"{cfile.source}: model: missing; name one with --model"])
-    model = load_model(model_name)
+    # a model the file names resolves beside the file; one given with --model, from here
+    model = load_model(model_name, None if args.model or not cfile.path else cfile.path.parent)
     cfile = check_fits(cfile, model)
     c = cfile.controller
     sampling = cfile.period if not c.discrete and cfile.period else None
     analysis = analyze(model, c, sampling_period=sampling,
                        tracked_output=cfile.tracked_output or default_output(model))
     if args.json:
-        print(json.dumps(analysis.as_dict()))
+        print(dumps(analysis.as_dict()))
     else:
         print(f"{cfile.name} on {model.name} ({'discrete, ' + time_text(c.period, model.time_unit, 'g') if c.discrete else 'continuous'})")
         print("eigenvalues of Abar: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
@@ -197,54 +141,18 @@ def cmd_analyze(args) -> int:
     return 0 if analysis.stable and sampled_ok else EXIT_FAILED
 
 
-class _Progress:
-    """Progress on stderr: a live bar on a terminal, a line every few seconds otherwise;
-    nothing for work that ends within ``delay`` seconds. ``note`` adds text (best so far)."""
-
-    def __init__(self, delay: float = 1.0, every: float = 5.0, unit: str = "step"):
-        import time
-
-        self._clock, self._delay, self._every, self._unit = time.monotonic, delay, every, unit
-        self._bar, self._name, self._started, self._last = None, None, 0.0, 0.0
-
-    def __call__(self, name: str, k: int, steps: int, note: str = "") -> None:
-        now = self._clock()
-        if name != self._name:
-            self.close()
-            self._name, self._started, self._last = name, now, now
-        if now - self._started < self._delay:
-            return
-        if sys.stderr.isatty():
-            if self._bar is None:
-                from tqdm import tqdm
-
-                self._bar = tqdm(total=steps, desc=f"  {name}", unit=self._unit, unit_scale=True,
-                                 leave=False, file=sys.stderr)
-            if note:
-                self._bar.set_postfix_str(note)
-            self._bar.update(k - self._bar.n)
-        elif now - self._last >= self._every or k == steps:
-            self._last = now
-            print(f"  {name}: {k}/{steps} {self._unit}s ({k / steps:.0%})" + (f", {note}" if note else ""),
-                  file=sys.stderr)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-
 def cmd_simulate(args) -> int:
     import time
     from pathlib import Path
 
+    from furuta_cosim.progress import Progress
     from furuta_cosim.scenario import load_scenario
     from furuta_cosim.simulation import simulate_scenario
 
     scenario = load_scenario(args.scenario)
     out = Path(args.output or Path("out") / scenario.name)
     started = time.perf_counter()
-    progress = _Progress()
+    progress = Progress()
     try:
         document, results = simulate_scenario(
             scenario, out, controllers=args.controller, fmu=args.fmu, every=args.every,
@@ -254,7 +162,7 @@ def cmd_simulate(args) -> int:
         progress.close()
     elapsed = time.perf_counter() - started
     if args.json:
-        print(json.dumps(document))
+        print(dumps(document))
     else:
         _print_table(scenario, results, document)
         print(f"{len(results)} run(s) of {document['steps']} steps in {elapsed:.2f} s; "
@@ -305,13 +213,14 @@ def cmd_tune(args) -> int:
     import time
     from pathlib import Path
 
-    from furuta_cosim.tuning.run import tune
+    from furuta_cosim.progress import Progress
+    from furuta_cosim.tuning.run import summary_text, tune
     from furuta_cosim.tuning.spec import load_spec
 
     spec = load_spec(args.spec)
     out = Path(args.output or Path("runs") / spec.name)
     started = time.monotonic()
-    bar = _Progress(delay=0.0, unit="evaluation")
+    bar = Progress(delay=0.0, unit="evaluation")
 
     def progress(done, total, best, feasible):
         rate = done / max(time.monotonic() - started, 1e-9)
@@ -319,6 +228,7 @@ def cmd_tune(args) -> int:
         bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
     workers = _workers(args)
+    args.resume_with = f"furuta-cosim tune {args.spec} -o {out} --resume"
     try:
         document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
                         workers=workers, dask=args.dask, resume=args.resume, progress=progress,
@@ -326,9 +236,9 @@ def cmd_tune(args) -> int:
     finally:
         bar.close()
     if args.json:
-        print(json.dumps(document))
+        print(dumps(document))
     else:
-        print((out / "summary.md").read_text(), end="")
+        print(summary_text(spec, document), end="")
         print(f"run directory: {out}")
     return 0 if document["best"] else EXIT_FAILED
 
@@ -359,31 +269,20 @@ def _overrides(items) -> dict:
 
 
 def cmd_regress(args) -> int:
-    from pathlib import Path
+    from furuta_cosim.progress import Progress
+    from furuta_cosim.regression import regress
 
-    from furuta_cosim.files import output_file, output_folder, write_text
-    from furuta_cosim.regression import regress, write_junit
-
-    if args.junit:
-        output_file(args.junit, "--junit")
-    if args.output:
-        output_folder(args.output)
     workers = _workers(args)
-    bar = _Progress(delay=0.0, unit="run")
+    bar = Progress(delay=0.0, unit="run")
     try:
         report = regress(args.paths, update=args.update, fmu=args.fmu, mapping=args.mapping,
                          overrides=_overrides(args.params), workers=workers,
-                         baselines=args.baselines,
+                         baselines=args.baselines, junit=args.junit, output=args.output,
                          progress=lambda done, total: bar("regress", done, total, ""))
     finally:
         bar.close()
-    if args.junit:
-        write_junit(report, args.junit)
-    if args.output:
-        write_text(Path(args.output) / "regress.json", json.dumps(report.to_dict(), indent=1))
-        write_junit(report, Path(args.output) / "regress.xml")
     if args.json:
-        print(json.dumps(report.to_dict()))
+        print(dumps(report.to_dict()))
         return EXIT_FAILED if report.failed else 0
     width = max([len(c.scenario) for c in report.cases] + [8])
     cwidth = max([len(c.controller) for c in report.cases] + [10])
@@ -451,7 +350,7 @@ def cmd_list(args) -> int:
 
     found = listing()
     if args.json:
-        print(json.dumps(found))
+        print(dumps(found))
         return 0
     for kind, entries in found.items():
         print(f"{kind}:")
@@ -501,7 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--Q", type=float, nargs="+", help="state weight: 1 value (times I), n diagonal values or n*n entries")
     q.add_argument("--R", type=float, nargs="+", help="input weight, like --Q (default 10 for the pendulum)")
     q.add_argument("--track", help="output the prefilter makes track (default theta0 / first output)")
-    q.add_argument("--name", default="lqr", help="the controller's name in the file")
+    q.add_argument("--name", help="the controller's name in the file (default: the -o file's "
+                                  "name, else lqr)")
     q.add_argument("--description", default="", help="a line saying what it is for")
     q.add_argument("-o", "--output", help="write the controller file")
     q.add_argument("--json", action="store_true", help="print JSON")
@@ -595,6 +495,12 @@ def _on_sigterm(signum, frame):
     raise _Terminated()
 
 
+def _resume_hint(args) -> str:
+    """For an interrupted command that can go on: how."""
+    command = getattr(args, "resume_with", None)
+    return f"; '{command}' continues it" if command else ""
+
+
 def main(argv: list[str] | None = None) -> int:
     import signal
 
@@ -606,7 +512,15 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:  # not the main thread (an embedding program): leave its handler alone
         previous = None
     try:
-        return args.handler(args)
+        code = args.handler(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
+    except BrokenPipeError:
+        # the reader went away (| head): end quietly, as a shell's commands do on SIGPIPE
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_PIPE
     except (ConfigError, DesignError) as error:
         for line in str(error).splitlines():
             print(f"error: {line}", file=sys.stderr)
@@ -623,10 +537,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {where}{error.strerror or error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except _Terminated:
-        print("terminated: no file was left half-written", file=sys.stderr)
+        print("terminated: no file was left half-written" + _resume_hint(args), file=sys.stderr)
         return 143
     except KeyboardInterrupt:
-        print("interrupted: no file was left half-written", file=sys.stderr)
+        print("interrupted: no file was left half-written" + _resume_hint(args), file=sys.stderr)
         return 130
     finally:
         if previous is not None:

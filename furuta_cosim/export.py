@@ -44,7 +44,7 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
         raise ConfigError([f"{cfile.source}: model: missing; name the model the controller "
                            "runs on (its states name the FMU's inputs), or give --model"])
     try:
-        linear = load_model(model_name)
+        linear = load_model(model_name, None if model or not cfile.path else cfile.path.parent)
     except ConfigError as error:
         raise error.within(f"{cfile.source}: model") from None
     cfile = check_fits(cfile, linear)

@@ -563,3 +563,89 @@ def test_a_large_controller_exports(tmp_path, capsys):
     assert code == 0, err
     description = read_model_description(str(tmp_path / "big.fmu"))
     assert len(description.modelVariables) > n * n
+
+
+# -- a new user's frictions (issue: the house in order) --------------------------------------------
+
+
+def test_python_dash_m_and_a_closed_pipe(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "furuta_cosim", "list", "--json"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0 and "scenarios" in json.loads(done.stdout)
+    for _ in range(3):   # the reader is gone before anything is written: always a broken pipe
+        process = subprocess.Popen([sys.executable, "-m", "furuta_cosim", "list", "--json"],
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        process.stdout.close()
+        err = process.stderr.read()
+        process.stderr.close()
+        assert process.wait() == 141 and err == b"", err
+
+
+def test_resuming_a_finished_run_keeps_its_times(stopped_run, tmp_path, capsys):
+    run = _copy_run(stopped_run, tmp_path)
+    before = json.loads((run / "summary.json").read_text())
+    assert before["optimizer_seconds"] > 0 and before["evaluation_seconds"] > 0
+    code, _, err = run_cli(capsys, "tune", "paper-spectral", "-o", str(run), "--workers", "1",
+                           "--n-calls", "10", "--resume")
+    assert code == 0, err
+    after = json.loads((run / "summary.json").read_text())
+    assert after["optimizer_seconds"] == pytest.approx(before["optimizer_seconds"], rel=1e-12)
+    assert after["evaluation_seconds"] == pytest.approx(before["evaluation_seconds"], rel=1e-12)
+
+
+def test_an_interrupted_tune_says_how_to_resume(tmp_path):
+    run = tmp_path / "run"
+    process = subprocess.Popen(CLI + ["tune", "paper-spectral", "-o", str(run), "--workers", "1"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    _wait_for_lines(run / "history.jsonl", 2)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130
+    assert f"'furuta-cosim tune paper-spectral -o {run} --resume' continues it" in err
+
+
+def test_design_lqr_names_the_file_after_its_output_and_records_a_findable_model(tmp_path, monkeypatch):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "variant.yaml").write_text(
+        "model: furuta\nextends: paper-calibrated\nparameters: {C1: 1.0e-4}\n")
+    monkeypatch.chdir(tmp_path)
+    done = subprocess.run(CLI + ["design", "lqr", "--model", "derived:sub/variant.yaml", "-o",
+                                 "out/my-lqr.yaml"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    data = yaml.safe_load((tmp_path / "out" / "my-lqr.yaml").read_text())
+    assert data["name"] == "my-lqr"
+    assert data["model"] == f"derived:{tmp_path / 'sub' / 'variant.yaml'}"
+    monkeypatch.chdir(tmp_path / "out")
+    done = subprocess.run(CLI + ["analyze", "my-lqr.yaml"], capture_output=True, text=True)
+    assert done.returncode in (0, 1) and "error" not in done.stderr, done.stderr
+
+
+def test_tools_regenerate_the_shipped_lqr_through_the_library(tmp_path, monkeypatch):
+    from furuta_cosim.lqr_file import design_lqr_file
+
+    design = design_lqr_file("paper-printed", name="lqr-paper", output=tmp_path / "lqr.yaml")
+    shipped = yaml.safe_load((SHIPPED / "controllers" / "lqr-paper.yaml").read_text())
+    fresh = yaml.safe_load(design.path.read_text())
+    assert fresh["name"] == "lqr-paper" and fresh["model"] == "paper-printed"
+    assert fresh["K"] == pytest.approx(shipped["K"], rel=1e-9)
+    text = (Path(__file__).parent.parent / "tools" / "regenerate_controllers.py").read_text()
+    assert "design_lqr_file" in text and "cli" not in text
+
+
+def test_json_output_is_strict_even_for_a_mode_at_z_zero(tmp_path, monkeypatch):
+    """A deadbeat loop (every eigenvalue at z = 0: s = log 0 = -inf, damping NaN) printed
+    Infinity and NaN, which strict JSON readers refuse; one converter makes them null."""
+    (tmp_path / "plant.yaml").write_text("model: linear\ntime: discrete\nperiod: 1.0\n"
+                                         "A: [[0.0, 0.0], [0.0, 1.0]]\nB: [[0.0], [1.0]]\nC: [[1.0, 1.0]]\n")
+    (tmp_path / "deadbeat.yaml").write_text("name: deadbeat\ntype: static\ntime: discrete\n"
+                                            "period: 1.0\nK: [0, 1]\nmodel: plant.yaml\n")
+    monkeypatch.chdir(tmp_path.parent)
+    done = subprocess.run(CLI + ["analyze", str(tmp_path / "deadbeat.yaml"), "--json"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+
+    document = json.loads(done.stdout, parse_constant=refuse)
+    assert document["dominant"]["eigenvalue"] == [0.0, 0.0] and document["dominant"]["damping"] is None

@@ -230,6 +230,11 @@ def test_a_campaign_on_a_local_dask_cluster(tmp_path):
     # the same asks (batches of two) give the same results wherever they are evaluated
     assert [r["objective"] for r in records] == [r["objective"] for r in history(tmp_path / "serial")]
     assert len({r["worker"] for r in records}) >= 1 and serial["best"] == document["best"]
+    # the worker that evaluated: a Dask worker's process, never this coordinating one
+    import os
+
+    assert all(isinstance(r["worker"], int) and r["worker"] != os.getpid() for r in records)
+    assert {r["worker"] for r in history(tmp_path / "serial")} == {os.getpid()}
 
 
 def test_differential_evolution_keeps_the_budget_and_the_history_format(tmp_path):

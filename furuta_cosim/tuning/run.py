@@ -24,37 +24,23 @@ from typing import Callable
 
 import numpy as np
 
+from furuta_cosim.documents import dumps, json_safe
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import atomic, output_folder, write_text
 from furuta_cosim.tuning.objective import Evaluator, Outcome
-from furuta_cosim.tuning.spec import TuningSpec
-
-METHODS = ("bo", "random", "de")
-
-
-def _json_safe(value):
-    """Non-finite numbers become null (JSON has none); numpy scalars plain numbers."""
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, (np.floating, np.integer)):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
+from furuta_cosim.tuning.spec import METHODS, TuningSpec
 
 
 def _record(index: int, x, names, outcome: Outcome) -> dict:
-    return _json_safe({"index": index, "x": [float(v) for v in x],
+    return json_safe({"index": index, "x": [float(v) for v in x],
                        "parameters": dict(zip(names, map(float, x))),
                        "objective": outcome.objective, "feasible": outcome.feasible,
                        "constraints": outcome.constraints, "metrics": outcome.metrics,
-                       "wall_time": outcome.wall_time, "worker": os.getpid(), "error": outcome.error})
+                       "wall_time": outcome.wall_time, "worker": outcome.worker, "error": outcome.error})
 
 
 def _append(handle, record: dict) -> None:
-    handle.write(json.dumps(record, allow_nan=False) + "\n")
+    handle.write(dumps(record) + "\n")
     handle.flush()
     os.fsync(handle.fileno())
 
@@ -277,7 +263,7 @@ def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, w
     from threadpoolctl import threadpool_limits
 
     batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
-    clock = {"optimizer": 0.0, "evaluation": 0.0}
+    clock = _Clock(folder / "run.json")
     # one BLAS thread for the optimizer, serial too: with workers they use the other cores;
     # alone, at a GP's sizes (150 points), a second thread made each iteration twice as
     # slow (tools/bench_tune.py, paper-spectral), and splitting BLAS reductions over
@@ -292,7 +278,31 @@ def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, w
     return _finish(spec, folder, evaluator, history.records, n_calls, method, seed, clock)
 
 
-def _report(progress, history: _History, n_calls: int) -> None:
+class _Clock(dict):
+    """Seconds spent in the optimizer and waiting for evaluations, kept in run.json after every
+    batch, so that a resumed run (a finished one too) goes on counting from there."""
+
+    def __init__(self, path: Path):
+        try:
+            saved = json.loads(path.read_text())
+        except (OSError, ValueError):
+            saved = {}
+        saved = saved if isinstance(saved, dict) else {}
+        super().__init__({key: _seconds(saved.get(f"{key}_seconds")) for key in ("optimizer", "evaluation")})
+        self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed")}
+
+    def save(self) -> None:
+        write_text(self.path, json.dumps({**self.identity, "optimizer_seconds": self["optimizer"],
+                                          "evaluation_seconds": self["evaluation"]}) + "\n")
+
+
+def _seconds(value) -> float:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return float(value) if ok and value >= 0 else 0.0
+
+
+def _report(progress, history: _History, n_calls: int, clock: _Clock) -> None:
+    clock.save()
     if progress:
         feasible = [r["objective"] for r in history.records if r["feasible"]]
         progress(len(history.records), n_calls, min(feasible) if feasible else None, len(feasible))
@@ -336,7 +346,7 @@ def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, 
         started = time.perf_counter()
         optimizer.tell(xs, ys)
         clock["optimizer"] += time.perf_counter() - started
-        _report(progress, history, n_calls)
+        _report(progress, history, n_calls, clock)
 
 
 def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch, clock,
@@ -357,13 +367,13 @@ def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, b
         if xs and remaining <= 0:
             raise _Spent()
         ys += _evaluate(executor, evaluator, history, xs[:remaining], clock)
-        _report(progress, history, n_calls)
+        _report(progress, history, n_calls, clock)
         if len(xs) > remaining:
             raise _Spent()
         return ys
 
     dimensions = len(evaluator.space.bounds)
-    started = time.perf_counter()
+    started, waited = time.perf_counter(), clock["evaluation"]
     try:
         differential_evolution(lambda x: 0.0, evaluator.space.bounds, seed=seed, maxiter=10**9,
                                popsize=max(5, min(15, n_calls // (4 * dimensions) or 1)),
@@ -371,7 +381,7 @@ def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, b
                                init="latinhypercube")
     except _Spent:
         pass
-    clock["optimizer"] += time.perf_counter() - started - clock["evaluation"]
+    clock["optimizer"] += time.perf_counter() - started - (clock["evaluation"] - waited)
 
 
 def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> dict:
@@ -383,7 +393,7 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
     for name in spec.baselines:
         cfile = load_controller(name)
         outcome = evaluator.score(cfile.controller)
-        baselines[cfile.name] = _json_safe({"objective": outcome.objective,
+        baselines[cfile.name] = json_safe({"objective": outcome.objective,
                                             "feasible": outcome.feasible,
                                             "constraints": outcome.constraints,
                                             "metrics": outcome.metrics})
@@ -403,8 +413,8 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
                             "parameters": best["parameters"], "metrics": best["metrics"],
                             "file": "best.yaml"}
     _convergence(folder, folder / "history.jsonl")
-    write_text(folder / "summary.json", json.dumps(_json_safe(document), indent=2, allow_nan=False) + "\n")
-    write_text(folder / "summary.md", _markdown(spec, document))
+    write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
+    write_text(folder / "summary.md", summary_text(spec, document))
     return document
 
 
@@ -438,7 +448,8 @@ def _convergence(folder: Path, history: Path) -> None:
     plt.close(figure)
 
 
-def _markdown(spec: TuningSpec, document: dict) -> str:
+def summary_text(spec: TuningSpec, document: dict) -> str:
+    """summary.md: the run's summary document in words (what ``tune`` prints)."""
     lines = [f"# Tuning {spec.name}", "", spec.description, "",
              f"- method: {document['method']}, seed {document['seed']}, {document['evaluations']} "
              f"evaluations, {document['feasible']} feasible, {document['failed']} failed",
