@@ -261,18 +261,6 @@ class Checker:
             return None
         return value
 
-    def metric(self, value: Any, key: str) -> str | None:
-        """A metric name, ``<signal>.<metric>``: its form and name (which signals a run records
-        is known once its plant is; ``prepare`` checks that)."""
-        from furuta_cosim.metrics import problem
-
-        text = self.string(value, key)
-        wrong = problem(text) if text else None
-        if wrong:
-            self.fail(key, wrong)
-            return None
-        return text
-
     def file_name(self, value: Any, key: str) -> str | None:
         """A name that becomes part of file names (traces, figures): a plain name."""
         text = self.string(value, key)

@@ -52,6 +52,18 @@ def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
     return result
 
 
+def checked(check, value, key: str) -> str | None:
+    """A metric name read from a file, ``<signal>.<metric>``: its form and name, reported
+    through ``check`` (a :class:`~furuta_cosim.config.Checker`) with its key. Which signals a
+    run records is known once its plant is; ``prepare`` checks that."""
+    text = check.string(value, key)
+    wrong = problem(text) if text else None
+    if wrong:
+        check.fail(key, wrong)
+        return None
+    return text
+
+
 def problem(metric: str, known: Mapping[str, tuple[str, ...]] | None = None) -> str | None:
     """Why ``metric`` ("<signal>.<name>") is not recorded, or None when it is.
 

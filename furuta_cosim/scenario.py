@@ -19,6 +19,7 @@ from furuta_cosim import paths
 from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
 from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.metrics import checked
 
 SIGNAL_KEYS = {
     "step": ({"time", "amplitude"}, {"initial"}),
@@ -282,7 +283,7 @@ def _regression(check: Checker, value) -> Regression:
     entries = check.mapping(raw, "regression.metrics", optional=tuple(raw) if isinstance(raw, dict) else ())
     for metric, tolerance in (entries or {}).items():
         key = f"regression.metrics.{metric}"
-        if check.metric(metric, key) is None:
+        if checked(check, metric, key) is None:
             continue
         own = check.mapping(tolerance, key, optional=("rtol", "atol"))
         if own:
@@ -497,7 +498,7 @@ def _requirements(check: Checker, value) -> tuple[Requirement, ...]:
         section = check.mapping(item, key, required=("metric",), optional=METRIC_BOUNDS + ("controllers",))
         if not section or "metric" not in section:
             continue
-        metric = check.metric(section["metric"], f"{key}.metric")
+        metric = checked(check, section["metric"], f"{key}.metric")
         bounds = {b: check.number(section[b], f"{key}.{b}") for b in METRIC_BOUNDS if b in section}
         if not bounds:
             check.fail(key, "expected a bound: max and/or min")

@@ -21,7 +21,8 @@ from pathlib import Path
 
 from fmpy.fmi2 import FMU2Slave
 
-from furuta_cosim.fmu.exporter import _compiler, build_fmu, fmi_headers
+from furuta_cosim.fmu.compiler import compiler
+from furuta_cosim.fmu.exporter import build_fmu, fmi_headers
 from furuta_cosim.fmu.session import FmuBinary, PlantSession
 
 K = [-0.31, -5.26, 70.74, 8.92, 0.17]
@@ -80,7 +81,7 @@ def floor(fmu: Path, steps: int, repeats: int) -> float:
         program = Path(work) / "floor"
         defines = [f"-DVR_OUT={','.join(str(vr[s]) for s in STATES)}", f"-DVR_V={vr['V']}",
                    f"-DVR_START={vr['theta1_start']}", f"-DGAIN={','.join(map(str, K))}", f"-DH={H}"]
-        subprocess.run([_compiler(), "-O2", "-std=c99", "-D_POSIX_C_SOURCE=199309L",
+        subprocess.run([compiler(), "-O2", "-std=c99", "-D_POSIX_C_SOURCE=199309L",
                         f"-I{fmi_headers()}", *defines, str(source), "-o", str(program), "-ldl"],
                        check=True)
         library = binary.directory / "binaries" / "linux64" / f"{binary.identifier}.so"

@@ -10,13 +10,10 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import os
 import shutil
 import subprocess
-import sys
 import uuid
 import zipfile
-from contextlib import contextmanager
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
@@ -25,14 +22,13 @@ import fmpy
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.files import atomic, copy, temporary_folder
+from furuta_cosim.fmu.compiler import CFLAGS, building, compiler, intact, seal, unwritable
 from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant, models
 
 GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
 # FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
 # the cache key, so such builds never mix with ordinary ones
-CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror",
-          "-fvisibility=hidden") + tuple(os.environ.get("FURUTA_COSIM_EXTRA_CFLAGS", "").split())
 PLATFORM = "linux64"
 _KINDS = {"parameter": "KIND_PARAMETER", "input": "KIND_INPUT", "output": "KIND_OUTPUT",
           "local": "KIND_LOCAL"}
@@ -222,80 +218,6 @@ def model_period(model: Model) -> float:
     return 1e-3
 
 
-def _compiler() -> str:
-    chosen = os.environ.get("CC")
-    if chosen:
-        found = shutil.which(chosen)
-        if not found:
-            raise FmuError(f"CC={chosen}: no such compiler (unset CC to use gcc)")
-        return found
-    compiler = shutil.which("gcc") or shutil.which("cc")
-    if not compiler:
-        raise FmuError("no C compiler found: install gcc (Debian: apt-get install gcc) or set CC")
-    return compiler
-
-
-def _digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _seal(target: Path) -> None:
-    """Record the content hash of a new cache entry beside it (``<entry>.sha256``)."""
-    with atomic(target.with_name(target.name + ".sha256")) as partial:
-        partial.write_text(_digest(target) + "\n")
-
-
-def _intact(target: Path, log) -> bool:
-    """True when ``target`` is in the cache and matches the hash recorded at build time; a
-    damaged entry (truncated, overwritten) is removed, saying so in one line."""
-    if not target.is_file():
-        return False
-    seal = target.with_name(target.name + ".sha256")
-    try:
-        if seal.read_text().strip() == _digest(target):
-            return True
-    except (OSError, UnicodeDecodeError):
-        pass
-    (log or _stderr)(f"the cached {target.name} is damaged or unverified: building it again")
-    for damaged in (target, seal):
-        try:
-            damaged.unlink(missing_ok=True)
-        except OSError:
-            pass
-    return False
-
-
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr)
-
-
-def _unwritable(error: OSError) -> FmuError:
-    return FmuError(f"cannot write the FMU cache {paths.cache()} ({error.strerror or error}): "
-                    "set FURUTA_COSIM_CACHE to a writable folder")
-
-
-def build_helper(source: Path) -> Path | None:
-    """Compile a small C helper of the package into the cache; None when that cannot be done
-    (no compiler, a cache that cannot be written): callers then do without it."""
-    text = source.read_bytes()
-    key = hashlib.sha256(text + " ".join(CFLAGS).encode()).hexdigest()[:16]
-    target = paths.cache() / f"{source.stem}-{key}.so"
-    if _intact(target, None):
-        return target
-    try:
-        compiler = _compiler()
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with atomic(target) as partial:
-            result = subprocess.run([compiler, *CFLAGS, str(source), "-o", str(partial)],
-                                    capture_output=True, text=True)
-            if result.returncode != 0:
-                return None
-        _seal(target)
-    except (FmuError, OSError):
-        return None
-    return target
-
-
 def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None,
               log=None) -> Path:
     """Build (or take from the cache) the FMU of ``plant`` and return its path.
@@ -360,39 +282,21 @@ def _build_cached(plant: PlantSet, log) -> Path:
     key = digest.hexdigest()
     guid = "{" + str(uuid.UUID(key[:32])) + "}"
     target = paths.cache() / f"{model.identifier}-{key[:16]}.fmu"
-    if _intact(target, log):
+    if intact(target, log):
         return target
-    compiler = _compiler()
-    with _building(target):  # a second process building the same entry waits, then finds it
-        if not _intact(target, log):
+    cc = compiler()
+    with building(target):  # a second process building the same entry waits, then finds it
+        if not intact(target, log):
             if log:
                 log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
             files["model_vars.h"] = generate_header(model, guid)
             try:
-                _build(model, files, guid, compiler, target)
-                _seal(target)
+                _build(model, files, guid, cc, target)
+                seal(target)
             except OSError as error:
-                raise _unwritable(error) from None
+                raise unwritable(error) from None
             _accepts_its_defaults(plant, target)
     return target
-
-
-@contextmanager
-def _building(target: Path):
-    """An exclusive lock on one cache entry (``<entry>.lock``) while it is built."""
-    import fcntl
-
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        handle = os.open(target.with_name(target.name + ".lock"),
-                         os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
-    except OSError as error:
-        raise _unwritable(error) from None
-    try:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(handle)
 
 
 def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
@@ -409,19 +313,19 @@ def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
         raise ConfigError([f"{plant.path}: parameters: the FMU refuses these values: {reason}"]) from None
 
 
-def _build(model: Model, files: dict, guid: str, compiler: str, target: Path) -> None:
+def _build(model: Model, files: dict, guid: str, cc: str, target: Path) -> None:
     sources = sorted(files)
     work = temporary_folder("build")
     try:
         for name, text in files.items():
             (work / name).write_text(text)
         binary = work / f"{model.identifier}.so"
-        command = [compiler, *CFLAGS, f"-I{work}", f"-I{fmi_headers()}",
+        command = [cc, *CFLAGS, f"-I{work}", f"-I{fmi_headers()}",
                    *(str(work / n) for n in sources if n.endswith(".c")), "-o", str(binary), "-lm"]
         try:
             result = subprocess.run(command, capture_output=True, text=True)
         except OSError as error:
-            raise FmuError(f"cannot run the C compiler {compiler}: {error.strerror}") from None
+            raise FmuError(f"cannot run the C compiler {cc}: {error.strerror}") from None
         if result.returncode != 0:
             raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}")
         description = generate_model_description(model, guid, sources)

@@ -26,7 +26,7 @@ from fmpy.model_description import ModelDescription
 
 from furuta_cosim.errors import FmuError
 from furuta_cosim.files import temporary_folder
-from furuta_cosim.fmu.exporter import build_helper
+from furuta_cosim.fmu.compiler import build_helper
 
 _FFI = cffi.FFI()
 _FFI.cdef("""

@@ -44,7 +44,11 @@ def plot_runs(traces: Mapping[str, Trace], path: str | Path, title: str = "",
 
 
 def _plot_runs(traces, path, title, signals, time_unit) -> list[Path]:
-    figure = figure_of_runs(traces, title, signals, time_unit)
+    return _save(figure_of_runs(traces, title, signals, time_unit), path, dpi=120)
+
+
+def _save(figure, path: str | Path, dpi: int) -> list[Path]:
+    """The figure as ``path``.png and .svg (atomically), closed afterwards."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     written = []
@@ -52,11 +56,34 @@ def _plot_runs(traces, path, title, signals, time_unit) -> list[Path]:
         for suffix in (".png", ".svg"):
             target = path.with_suffix(suffix)
             with atomic(target) as partial:
-                figure.savefig(partial, dpi=120, format=suffix[1:])
+                figure.savefig(partial, dpi=dpi, format=suffix[1:])
             written.append(target)
     finally:
         plt.close(figure)
     return written
+
+
+def plot_convergence(records: Sequence[Mapping], path: str | Path) -> list[Path]:
+    """A tuning's convergence (each evaluation's objective, infeasible ones marked, the best
+    so far) as ``path``.png and .svg; ``records`` are its history lines."""
+    index = [r["index"] for r in records]
+    values = np.array([r["objective"] if r["feasible"] else np.nan for r in records])
+    running = np.fmin.accumulate(np.where(np.isnan(values), np.inf, values))
+    figure, axis = plt.subplots(figsize=(7, 3.6))
+    axis.plot(index, values, "o", markersize=3, alpha=0.5, label="feasible evaluation")
+    infeasible = [r["index"] for r in records if not r["feasible"]]
+    if infeasible:
+        top = float(np.nanmax(values)) if np.any(np.isfinite(values)) else 1.0
+        axis.plot(infeasible, [top] * len(infeasible), "x", color="grey", markersize=3,
+                  label="infeasible")
+    axis.step(index, np.where(np.isfinite(running), running, np.nan), where="post", color="C3",
+              label="best so far")
+    axis.set_xlabel("evaluation")
+    axis.set_ylabel("objective")
+    axis.grid(True, alpha=0.3)
+    axis.legend(fontsize="small")
+    figure.tight_layout()
+    return _save(figure, path, dpi=110)
 
 
 def figure_of_runs(traces: Mapping[str, Trace], title: str = "",

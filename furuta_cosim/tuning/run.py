@@ -26,7 +26,8 @@ import numpy as np
 
 from furuta_cosim.documents import dumps, json_safe
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.files import atomic, output_folder, write_text
+from furuta_cosim.files import output_folder, write_text
+from furuta_cosim.report.figures import plot_convergence
 from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import METHODS, TuningSpec
 
@@ -412,40 +413,10 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
         document["best"] = {"index": best["index"], "objective": best["objective"],
                             "parameters": best["parameters"], "metrics": best["metrics"],
                             "file": "best.yaml"}
-    _convergence(folder, folder / "history.jsonl")
+    plot_convergence(records, folder / "convergence")
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
     write_text(folder / "summary.md", summary_text(spec, document))
     return document
-
-
-def _convergence(folder: Path, history: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    records = [json.loads(line) for line in history.read_text().splitlines() if line.strip()]
-    index = [r["index"] for r in records]
-    values = np.array([r["objective"] if r["feasible"] else math.nan for r in records])
-    running = np.fmin.accumulate(np.where(np.isnan(values), np.inf, values))
-    figure, axis = plt.subplots(figsize=(7, 3.6))
-    axis.plot(index, values, "o", markersize=3, alpha=0.5, label="feasible evaluation")
-    infeasible = [r["index"] for r in records if not r["feasible"]]
-    if infeasible:
-        axis.plot(infeasible, [np.nanmax(values) if np.isfinite(np.nanmax(values)) else 1.0] * len(infeasible)
-                  if np.any(np.isfinite(values)) else [1.0] * len(infeasible),
-                  "x", color="grey", markersize=3, label="infeasible")
-    axis.step(index, np.where(np.isfinite(running), running, np.nan), where="post", color="C3",
-              label="best so far")
-    axis.set_xlabel("evaluation")
-    axis.set_ylabel("objective")
-    axis.grid(True, alpha=0.3)
-    axis.legend(fontsize="small")
-    figure.tight_layout()
-    for suffix in ("png", "svg"):
-        with atomic(folder / f"convergence.{suffix}") as partial:
-            figure.savefig(partial, dpi=110, format=suffix)
-    plt.close(figure)
 
 
 def summary_text(spec: TuningSpec, document: dict) -> str:

@@ -22,6 +22,7 @@ from furuta_cosim import paths
 from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.metrics import checked
 from furuta_cosim.scenario import scenario_path
 from furuta_cosim.tuning.space import KINDS, Block
 
@@ -297,7 +298,7 @@ def _objective(check: Checker, value) -> Objective | None:
             term = check.mapping(item, f"objective.terms[{k}]", required=("metric",), optional=("weight",))
             if not term or "metric" not in term:
                 continue
-            metric = check.metric(term["metric"], f"objective.terms[{k}].metric")
+            metric = checked(check, term["metric"], f"objective.terms[{k}].metric")
             weight = check.number(term.get("weight", 1.0), f"objective.terms[{k}].weight", minimum=0.0)
             if metric and weight is not None:
                 terms.append(Term(metric, weight))
@@ -344,7 +345,7 @@ def _constraints(check: Checker, value) -> Constraints:
         if "metrics" in relative:
             ratios = check.numbers(relative["metrics"], "constraints.no_worse_than.metrics", positive=True)
             factors = tuple((metric, ratio) for metric, ratio in ratios.items()
-                            if check.metric(metric, f"constraints.no_worse_than.metrics.{metric}"))
+                            if checked(check, metric, f"constraints.no_worse_than.metrics.{metric}"))
     return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
                        flags["requirements"], penalty or Constraints.penalty, baseline, factors)
 
