@@ -336,7 +336,7 @@ def cmd_reproduce(args) -> int:
 
     from furuta_cosim.reproduce import reproduce
 
-    out = Path(args.output or "reproduction")
+    out = Path(args.output or Path("runs") / "reproduction")
     document = reproduce(out, budget=args.budget, workers=_workers(args),
                          log=lambda line: print(line, file=sys.stderr))
     counts = document["counts"]
@@ -475,7 +475,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_report)
 
     p = commands.add_parser("reproduce", help="the paper, claim by claim: our value and a verdict")
-    p.add_argument("-o", "--output", help="folder (default: reproduction)")
+    p.add_argument("-o", "--output", help="folder (default: runs/reproduction)")
     p.add_argument("--budget", choices=("quick", "full"), default="quick",
                    help="tuning calls: quick 30, full 150 (the paper's)")
     p.add_argument("--workers", type=int, help="worker processes for the tunings (default: one per core)")

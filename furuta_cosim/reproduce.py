@@ -16,7 +16,6 @@ from typing import Callable
 
 import numpy as np
 
-from furuta_cosim import paths
 from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.design.lqr import PAPER_Q, PAPER_R
 from furuta_cosim.documents import dumps
@@ -257,8 +256,7 @@ def reproduce(output: str | Path, *, budget: str = "quick", workers: int = 1,
     md = ["# Reproduction of Solis & Thomas (2021)", "",
           "Generalized State-Feedback Controller Synthesis for Underactuated Systems through "
           "Bayesian Optimization. Every printed number and claim, the project's value, and a "
-          f"verdict; the readings are explained in [{READINGS}]({(paths.root() / READINGS).as_uri()}) "
-          "of the repository.", "",
+          f"verdict; the readings are explained in `{READINGS}` of the repository.", "",
           f"Budget: {budget} ({BUDGETS[budget]} tuning calls). Plant FMU: {fmu.name}. "
           + ", ".join(f"{n} {v}" for v, n in counts.items()) + ".", "",
           "| claim or printed number | paper | ours | verdict | note |", "|---|---|---|---|---|"]

@@ -49,6 +49,7 @@ def spec_file(folder: Path, **changes) -> Path:
 # -- one resolver -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_copy_of_the_scenarios_checks_its_own_controllers(tmp_path, monkeypatch):
     copy = tmp_path / "copy" / "scenarios"
     shutil.copytree(SHIPPED, copy)
@@ -187,10 +188,12 @@ except FmuError as error:
 session.close()
 print("closed")
 """
-    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, (done.returncode, done.stdout, done.stderr)
-    assert "failed fatally" in done.stdout and "open a new session" in done.stdout
-    assert done.stdout.rstrip().endswith("closed")
+    for _ in range(5):  # unloading the library after the fatal error corrupted the heap at times
+        done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 0, (done.returncode, done.stdout, done.stderr)
+        assert "failed fatally" in done.stdout and "open a new session" in done.stdout
+        assert done.stdout.rstrip().endswith("closed")
 
 
 def _tune_process(spec: str, run: Path, *extra: str, env=None) -> subprocess.Popen:
@@ -207,6 +210,7 @@ def _wait_for_lines(path: Path, count: int, timeout: float = 120) -> None:
     raise AssertionError(f"{path}: fewer than {count} lines after {timeout} s")
 
 
+@pytest.mark.slow
 def test_one_run_per_directory(tmp_path):
     run = tmp_path / "run"
     first = _tune_process("paper-spectral", run, "--workers", "1", "--n-calls", "150")
@@ -223,6 +227,7 @@ def test_one_run_per_directory(tmp_path):
     assert [r["index"] for r in records] == list(range(len(records)))
 
 
+@pytest.mark.slow
 def test_killing_tune_ends_its_workers(tmp_path):
     run = tmp_path / "run"
     process = _tune_process("effort", run, "--workers", "2", "--n-calls", "150")
@@ -471,6 +476,7 @@ def test_export_controller_refuses_a_bad_period(tmp_path, capsys, period, expect
     assert expected in line
 
 
+@pytest.mark.slow
 def test_two_builds_at_once_on_an_empty_cache_both_succeed(tmp_path):
     for attempt in range(3):
         cache = tmp_path / f"cache{attempt}"
@@ -515,6 +521,7 @@ def test_temporary_folders_of_gone_processes_are_swept(tmp_path):
         shutil.rmtree(mine, ignore_errors=True)
 
 
+@pytest.mark.slow
 def test_a_dask_run_without_workers_or_scheduler_stops_resumably(tmp_path):
     from distributed import LocalCluster
 
@@ -547,6 +554,7 @@ def test_a_dask_run_without_workers_or_scheduler_stops_resumably(tmp_path):
     assert [r["index"] for r in records] == list(range(kept + 2))
 
 
+@pytest.mark.slow
 def test_a_large_controller_exports(tmp_path, capsys):
     """Declaring variables is linear in their number (a 300-state controller, 90,000
     parameters, took about 20 s once the quadratic duplicate check was gone; 120 states here)."""
@@ -595,8 +603,10 @@ def test_resuming_a_finished_run_keeps_its_times(stopped_run, tmp_path, capsys):
 
 def test_an_interrupted_tune_says_how_to_resume(tmp_path):
     run = tmp_path / "run"
+    # Ctrl-C's default action, whatever the launching shell set (a background job ignores it)
     process = subprocess.Popen(CLI + ["tune", "paper-spectral", "-o", str(run), "--workers", "1"],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler))
     _wait_for_lines(run / "history.jsonl", 2)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
@@ -604,6 +614,7 @@ def test_an_interrupted_tune_says_how_to_resume(tmp_path):
     assert f"'furuta-cosim tune paper-spectral -o {run} --resume' continues it" in err
 
 
+@pytest.mark.slow
 def test_design_lqr_names_the_file_after_its_output_and_records_a_findable_model(tmp_path, monkeypatch):
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "variant.yaml").write_text(

@@ -78,3 +78,19 @@ def test_the_readme_every_key_tuning_spec_runs(tmp_path):
     path.write_text(re.search(r"```yaml\n(.*?)```", section, re.S).group(1))
     document = tune(load_spec(path), tmp_path / "run", n_calls=2)
     assert document["evaluations"] == 2 and document["baselines"]["lqr-paper"]["feasible"]
+
+
+PYTHON = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+
+
+@pytest.mark.parametrize("index", range(len(PYTHON)))
+def test_readme_python_examples_paste_into_the_interactive_prompt(index):
+    """Pasted line by line at >>> (where a block ends only at a blank line), no example is a
+    SyntaxError."""
+    import codeop
+
+    pending = []
+    for line in PYTHON[index].splitlines() + [""]:
+        pending.append(line)
+        if codeop.compile_command("\n".join(pending), "<stdin>", "single") is not None:
+            pending = []

@@ -246,6 +246,7 @@ def test_a_damaged_baseline_never_passes(tmp_path, capsys, damage, expected):
         assert "REGRESSION step / mine: theta1" in out, out
 
 
+@pytest.mark.slow
 def test_regress_passes_under_other_blas_kernels():
     """The shipped baselines do not rest on rounding: the same regress under two OpenBLAS
     kernels (each rounds its reductions its own way) passes, the diverging bo-paper run on

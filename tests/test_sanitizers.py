@@ -41,6 +41,7 @@ def test_the_sanitizers_catch_a_bug_here(tmp_path, function, report):
     assert result.returncode != 0 and report in result.stderr, result.stderr[-2000:]
 
 
+@pytest.mark.slow
 def test_the_fmu_tests_run_clean_on_a_sanitized_build(tmp_path):
     tests = ["tests/test_fmu_faults.py", "tests/test_fmu_bad_input.py", "tests/test_session.py",
              "tests/test_linearize.py"]

@@ -90,6 +90,7 @@ def _step_helper():
     return _HELPER or None
 
 
+_LOST: list = []  # libraries of instances that failed fatally: kept loaded, never called
 _FATAL = 4  # fmi2Fatal (and fmi2Pending, which nothing here asks for): the instance is lost;
 # fmi2Error (3) and fmi2Discard (2) are errors: nothing here retries
 
@@ -131,6 +132,8 @@ def state_names(model_description: ModelDescription) -> list[str]:
 class FmuBinary:
     """An extracted FMU with its shared library loaded; shared by the sessions on it."""
 
+    lost = False  # an instance on it failed fatally: the library is never unloaded then
+
     def __init__(self, fmu: str | Path):
         self.path = Path(fmu)
         if not self.path.is_file():
@@ -160,6 +163,13 @@ class FmuBinary:
             raise FmuError(f"{self.identifier} has no variable {name!r} (known: {known})") from None
 
     def close(self) -> None:
+        if self.lib is not None and self.lost:
+            # an instance that failed fatally is neither freed nor is its library unloaded: the
+            # library may still hold state of it (a pythonfmu plant corrupted the heap at exit
+            # when it was unloaded), so it stays loaded, unused, for the life of the process
+            _LOST.append(self.lib)
+            self.lib = None
+            shutil.rmtree(self.directory, ignore_errors=True)
         if self.lib is not None:
             _FFI.dlclose(self.lib)
             # cffi's FFI keeps every library it opened in a list, even closed ones: about 9 KB
@@ -248,6 +258,7 @@ class PlantSession:
             # FMI 2.0: after fmi2Fatal no function of the instance may be called, not even
             # fmi2Terminate or fmi2FreeInstance; only unloading the library is left
             self._c = None
+            self.binary.lost = True
             self._step_io = lambda call, t, h: self._usable()
             raise FmuError(f"{self.binary.identifier}: {what} failed fatally: {self._drain()} "
                            "(the instance cannot be used again)")

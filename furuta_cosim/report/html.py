@@ -91,14 +91,22 @@ def markdown_to_html(text: str) -> str:
                        + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>"
                                  for row in body) + "</tbody></table>")
         elif line.startswith(("- ", "* ")):
-            items = []
+            items: list[tuple[str, list[str]]] = []   # (text, nested items)
             while k < len(lines) and lines[k].startswith(("- ", "* ", "  ")):
-                if lines[k].startswith(("- ", "* ")):
-                    items.append(lines[k][2:])
+                text = lines[k]
+                if text.startswith(("- ", "* ")):
+                    items.append((text[2:], []))
+                elif text.lstrip().startswith(("- ", "* ")):     # an indented item: nested
+                    items[-1][1].append(text.lstrip()[2:])
+                elif items[-1][1]:                                # continues the nested item
+                    items[-1][1][-1] += " " + text.strip()
                 else:
-                    items[-1] += " " + lines[k].strip()
+                    items[-1] = (items[-1][0] + " " + text.strip(), items[-1][1])
                 k += 1
-            out.append("<ul>" + "".join(f"<li>{_inline(i)}</li>" for i in items) + "</ul>")
+            out.append("<ul>" + "".join(
+                f"<li>{_inline(text)}" + ("<ul>" + "".join(f"<li>{_inline(c)}</li>" for c in nested)
+                                          + "</ul>" if nested else "") + "</li>"
+                for text, nested in items) + "</ul>")
         elif not line.strip():
             k += 1
         else:

@@ -19,6 +19,8 @@ import json
 import math
 import os
 import time
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
@@ -250,7 +252,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
             raise ConfigError([f"--resume: the run holds {len(history.records)} evaluations, "
                                f"more than --n-calls {n_calls}"])
         return _search(spec, folder, evaluator, executor, history, n_calls, seed, method,
-                       workers, dask, progress)
+                       workers, dask, progress, log)
     finally:
         executor.close()
         if history is not None:
@@ -260,7 +262,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
 
 
 def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, workers, dask,
-            progress) -> dict:
+            progress, log) -> dict:
     from threadpoolctl import threadpool_limits
 
     batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
@@ -276,6 +278,9 @@ def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, w
         else:
             _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock,
                       progress)
+    if clock.repeated and log:
+        log(f"the acquisition proposed an already evaluated point {clock.repeated} time(s); "
+            "scikit-optimize took a random point instead each time")
     return _finish(spec, folder, evaluator, history.records, n_calls, method, seed, clock)
 
 
@@ -291,6 +296,7 @@ class _Clock(dict):
         saved = saved if isinstance(saved, dict) else {}
         super().__init__({key: _seconds(saved.get(f"{key}_seconds")) for key in ("optimizer", "evaluation")})
         self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed")}
+        self.repeated = 0  # already-evaluated points the acquisition proposed (this process)
 
     def save(self) -> None:
         write_text(self.path, json.dumps({**self.identity, "optimizer_seconds": self["optimizer"],
@@ -331,13 +337,15 @@ def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, 
     optimizer = make(evaluator.space.dimensions(), method, seed, xi=settings.xi,
                      n_initial_points=settings.n_initial_points, gp_restarts=settings.gp_restarts)
     if history.records:
-        optimizer.replay([r["x"] for r in history.records], [r["objective"] for r in history.records])
+        with _repeats(clock):
+            optimizer.replay([r["x"] for r in history.records], [r["objective"] for r in history.records])
     while len(history.records) < n_calls:
         xs, pending, points = [], [], None
         while True:  # each point goes out while the next one is computed
             started = time.perf_counter()
-            points = points or optimizer.batch(min(batch, n_calls - len(history.records)))
-            x = next(points, None)
+            with _repeats(clock):
+                points = points or optimizer.batch(min(batch, n_calls - len(history.records)))
+                x = next(points, None)
             clock["optimizer"] += time.perf_counter() - started
             if x is None:
                 break
@@ -345,9 +353,27 @@ def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, 
             pending.append(executor.submit(x))
         ys = _collect(executor, evaluator, history, xs, pending, clock)
         started = time.perf_counter()
-        optimizer.tell(xs, ys)
+        with _repeats(clock):
+            optimizer.tell(xs, ys)
         clock["optimizer"] += time.perf_counter() - started
         _report(progress, history, n_calls, clock)
+
+
+_REPEAT = "The objective has been evaluated at point"
+
+
+@contextmanager
+def _repeats(clock: "_Clock"):
+    """scikit-optimize warns, with the whole point, each time the acquisition proposes a point
+    already evaluated (it takes a random one instead): counted here, said once at the end."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for warning in caught:
+        if str(warning.message).startswith(_REPEAT):
+            clock.repeated += 1
+        else:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
 
 
 def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch, clock,
@@ -457,14 +483,21 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         lines.append("| run | metric | tuned | " + " | ".join(names) + " | tuned / " +
                      (names[0] if names else "-") + " |")
         lines.append("| --- " * (4 + len(names)) + "|")
+        same = []
         for label, values in best["metrics"].items():
             for key in keys:
                 value = values.get(key)
                 others = [document["baselines"][n]["metrics"].get(label, {}).get(key) for n in names]
+                if others and all(other == value for other in others):
+                    same.append(f"{label} {key}")  # equal everywhere: no information in a row
+                    continue
                 ratio = (f"{value / others[0]:.3f}" if names and value is not None and others[0]
                          else "")
                 shown = [_cell(v) for v in [value] + others]
                 lines.append(f"| {label} | {key} | " + " | ".join(shown) + f" | {ratio} |")
+        if same:
+            lines += ["", "The same for the tuned controller and every baseline (left out of the "
+                          "table): " + ", ".join(same) + "."]
     return "\n".join(lines) + "\n"
 
 
