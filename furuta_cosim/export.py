@@ -29,6 +29,7 @@ from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.design.controller import discretize_controller
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.plants import LinearSpec, PlantSet
+from furuta_cosim.signals import controller_state
 
 REFERENCE_INPUT = "r"
 
@@ -68,14 +69,14 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
     n, m = c.Dc.shape[1], c.n_xc
     A, B = c.Ac, np.hstack([c.Bc, np.zeros((m, 1))])     # xc[k+1] from [x; r]
     C, D = -c.Cc, np.hstack([-c.Dc, [[F]]])              # u from xc and [x; r]
-    states = [f"xc{k + 1}" for k in range(m)]
+    states = [controller_state(k + 1) for k in range(m)]
     if delay:  # z[k+1] = u[k]; the output is z
         A = np.block([[A, np.zeros((m, 1))], [C, np.zeros((1, 1))]])
         B = np.vstack([B, D])
         C, D = np.hstack([np.zeros((1, m)), [[1.0]]]), np.zeros_like(D)
         states.append("u_held")
     elif not m:  # one inert state: C has no zero-size arrays
-        A, B, C, states = np.zeros((1, 1)), np.zeros((1, n + 1)), np.zeros((1, 1)), ["xc1"]
+        A, B, C, states = np.zeros((1, 1)), np.zeros((1, n + 1)), np.zeros((1, 1)), [controller_state(1)]
     # a C identifier from the name: its alphanumeric parts, capitalized (lqr-paper: LqrPaper)
     identifier = "".join(part.capitalize() for part in re.split(r"[^0-9A-Za-z]+", cfile.name) if part)
     if not identifier[:1].isalpha():

@@ -17,10 +17,11 @@ Keys are ``<signal>.<metric>``:
 from __future__ import annotations
 
 import math
-import re
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
+
+from furuta_cosim.signals import COMMAND, is_controller_state, is_estimate
 
 THRESHOLD = 0.02
 STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
@@ -71,9 +72,9 @@ def problem(metric: str, known: Mapping[str, tuple[str, ...]] | None = None) -> 
     signal, dot, name = metric.partition(".")
     if not dot or not signal or not name:
         return f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}"
-    if known is None or re.fullmatch(r"xc\d+", signal):
+    if known is None or is_controller_state(signal):
         names = {"u": INPUT_METRICS, "error": ERROR_METRICS}.get(signal, ALL_NAMES)
-        if re.fullmatch(r"xc\d+", signal):
+        if is_controller_state(signal):
             names = SIGNAL_METRICS
         if name not in names:
             return f"{signal} has no metric {name!r} (expected one of: {', '.join(names)})"
@@ -172,7 +173,7 @@ def _compute(trace, settles: bool, error_window) -> dict[str, float]:
 def _regulated(trace) -> set[str]:
     """Outputs (not inputs, controller states or estimates) that start away from zero."""
     return {n for n, v in trace.signals.items()
-            if not n.startswith(("xc", "u_")) and not n.endswith("_hat") and v[0] != 0.0}
+            if not (is_controller_state(n) or is_estimate(n) or n == COMMAND) and v[0] != 0.0}
 
 
 def verdicts(metrics: Mapping[str, float], requirements: Sequence,

@@ -3,6 +3,7 @@
  *
  * Nothing here knows a plant: the plant's equations come through model_api.h and its
  * variables through the generated model_vars.h. All state is per instance. */
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -501,6 +502,10 @@ static fmi2Status advance(Instance *inst, double H) {
     for (j = 0; j < n; j++) {
         rk4(values, x, h);
         if (states_diverged(x)) break;
+        /* a state that decays below the smallest normal double becomes 0: subnormal numbers
+         * made every later step several times slower (a long run whose state settles) */
+        for (k = 0; k < N_STATES; k++)
+            if (fabs(x[k]) < DBL_MIN) x[k] = 0.0;
     }
     for (k = 0; k < N_STATES; k++) values->r[STATE_VR[k]] = x[k];
 #endif

@@ -33,6 +33,7 @@ from furuta_cosim.cosim.trace import Trace
 from furuta_cosim.design.controller import GeneralizedController, discretize_controller
 from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.metrics import compute, verdicts
+from furuta_cosim.signals import COMMAND, controller_state, estimate
 
 # samples per chunk of the loop when progress is reported (about 0.1 s of plant time each)
 CHUNK = 50_000
@@ -190,11 +191,11 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
     signals = {name: column for name, column in zip(prepared.signals, np.array(rows).T)} if n else \
         {name: np.zeros(0) for name in prepared.signals}
     if limit:
-        signals["u_command"] = np.array(commands[:n])
+        signals[COMMAND] = np.array(commands[:n])
     for j, column in enumerate(np.array(xcs[:n]).T if xcs else []):
-        signals[f"xc{j + 1}"] = column
+        signals[controller_state(j + 1)] = column
     for j, column in enumerate(np.array(estimates[:n]).T if estimates else []):
-        signals[f"{prepared.states[j]}_hat"] = column
+        signals[estimate(prepared.states[j])] = column
     for j, name in enumerate(prepared.disturbances):
         signals[name] = prepared.disturbance[:n, j]
     return Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us), signals,

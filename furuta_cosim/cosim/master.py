@@ -30,6 +30,7 @@ from furuta_cosim.fmu.plants import PlantSet, load_plant
 from furuta_cosim.fmu.session import model_description
 from furuta_cosim.metrics import catalogue, problem
 from furuta_cosim.scenario import Scenario
+from furuta_cosim.signals import COMMAND, estimate, is_controller_state, start_parameter
 
 # A run keeps its trace in memory: about 300 bytes per sample with the pendulum's signals.
 MAX_STEPS = 10_000_000
@@ -162,7 +163,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
             continue
         target = scenario.mapping.initial.get(name) if scenario.mapping else None
         key = f"plant.mapping.initial.{name}" if target else f"plant.initial.{name}"
-        target = target or f"{state_outputs[states.index(name)]}_start"
+        target = target or start_parameter(state_outputs[states.index(name)])
         if target not in parameters:
             fail(key, f"{identifier} has no parameter {target!r} to set the start of {name}"
                  + ("" if key.startswith("plant.mapping") else
@@ -197,8 +198,8 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
         if name not in allowed:
             fail(f"noise.measurement.{name}", f"not a fed-back signal (fed back: {', '.join(allowed)})")
 
-    others = list(process) + (["u_command"] if scenario.actuator_limit else []) + \
-        ([f"{n}_hat" for n in states] if scenario.estimator else [])
+    others = list(process) + ([COMMAND] if scenario.actuator_limit else []) + \
+        ([estimate(n) for n in states] if scenario.estimator else [])
     t = np.arange(steps) * period
     rbar = scenario.reference(t)
     # step metrics need a step to measure: a reference that changes, or one away from the start
@@ -210,7 +211,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
         if wrong:
             fail(f"requirements[{k}].metric", wrong)
     for name in scenario.plot:
-        if name not in known and name != "u" and not name.startswith("xc"):
+        if name not in known and name != "u" and not is_controller_state(name):
             fail("plot", f"no signal {name!r} is recorded (signals: {', '.join(k for k in known if k != 'error')})")
     if scenario.error_window and steps:
         begin, end = scenario.error_window
@@ -301,7 +302,8 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
 
 def state_names_of(variables: dict) -> list[str]:
     """This project's convention: the outputs that have a ``<name>_start`` parameter."""
-    return [n for n, v in variables.items() if v.causality == "output" and f"{n}_start" in variables]
+    return [n for n, v in variables.items()
+            if v.causality == "output" and start_parameter(n) in variables]
 
 
 def _timing(scenario: Scenario, plant: PlantSet | None, fail) -> tuple[float, float, int, str]:

@@ -13,6 +13,7 @@ import re
 from dataclasses import dataclass, field
 
 from furuta_cosim.errors import FmuError
+from furuta_cosim.signals import start_parameter
 
 CAUSALITIES = ("parameter", "input", "output", "local")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?$|^der\([A-Za-z_][A-Za-z0-9_]*\)$")
@@ -128,7 +129,7 @@ class Model:
     def register_state(self, name: str, start: float, unit: str, description: str) -> None:
         """Add a state: an output, the parameter ``<name>_start`` and, if continuous, ``der(<name>)``."""
         self.register_variable(Real(name, "output", unit=unit, description=description))
-        start_name = f"{name}_start"
+        start_name = start_parameter(name)
         self.register_variable(Real(start_name, "parameter", start=start, unit=unit,
                                     description=f"initial value of {name}"))
         derivative = None

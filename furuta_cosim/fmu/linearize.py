@@ -21,6 +21,7 @@ import numpy as np
 
 from furuta_cosim.errors import FmuError
 from furuta_cosim.fmu.session import FmuBinary, PlantSession
+from furuta_cosim.signals import start_parameter
 
 _DELTA = np.finfo(float).eps ** (1.0 / 3.0)
 
@@ -74,7 +75,7 @@ def linearize(fmu: str | Path, parameters: Mapping[str, float] | None = None,
             if name not in states:
                 raise FmuError(f"{binary.identifier}: {name!r} is not a state (states: {', '.join(states)})")
         start = dict(parameters or {})
-        start.update({f"{name}_start": value for name, value in (state or {}).items()})
+        start.update({start_parameter(name): value for name, value in (state or {}).items()})
         if md.modelExchange is not None:
             return _continuous(binary, start, states, input_names, u0, output_names)
         period = float(md.defaultExperiment.stepSize) if md.defaultExperiment else 1.0
@@ -103,7 +104,7 @@ def _discrete(binary, start, states, input_names, u0, output_names, period) -> L
         session.set_io(input_names, list(states))
 
         def evaluate(x, u):
-            session.reset({**start, **{f"{n}_start": v for n, v in zip(states, x)}})
+            session.reset({**start, **{start_parameter(n): v for n, v in zip(states, x)}})
             session.set(dict(zip(input_names, u)))
             y = np.array(session.get(output_names))
             return np.array(session.step(list(u), period)), y

@@ -27,6 +27,7 @@ from fmpy.model_description import ModelDescription
 from furuta_cosim.errors import FmuError
 from furuta_cosim.files import temporary_folder
 from furuta_cosim.fmu.compiler import build_helper
+from furuta_cosim.signals import start_parameter
 
 _FFI = cffi.FFI()
 _FFI.cdef("""
@@ -126,7 +127,7 @@ def state_names(model_description: ModelDescription) -> list[str]:
     """The plant's states: the outputs ``x`` that have a start parameter ``x_start``."""
     names = {v.name for v in model_description.modelVariables}
     return [v.name for v in model_description.modelVariables
-            if v.causality == "output" and f"{v.name}_start" in names]
+            if v.causality == "output" and start_parameter(v.name) in names]
 
 
 class FmuBinary:
