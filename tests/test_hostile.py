@@ -87,6 +87,20 @@ def test_a_specs_relative_controllers_resolve_beside_it(tmp_path, monkeypatch):
     assert loaded.constraints.baseline == str((folder / "reference.yaml").resolve())
 
 
+def test_a_spec_names_a_model_of_its_own_tree(tmp_path):
+    """A model only the spec's tree has (plants/ beside tuning/) loads, and is recorded as the
+    file it resolved to, so best.yaml in a run directory names the same model."""
+    (tmp_path / "plants").mkdir()
+    (tmp_path / "tuning").mkdir()
+    shutil.copy(SHIPPED / "plants" / "paper-printed.yaml", tmp_path / "plants" / "mine.yaml")
+    text = (SHIPPED / "tuning" / "paper-spectral.yaml").read_text()
+    assert "model: paper-printed" in text
+    (tmp_path / "tuning" / "s.yaml").write_text(text.replace("model: paper-printed", "model: mine"))
+    from furuta_cosim.tuning.spec import load_spec
+
+    assert load_spec(tmp_path / "tuning" / "s.yaml").model == str((tmp_path / "plants" / "mine.yaml").resolve())
+
+
 # -- no code from a parameter file ----------------------------------------------------------------
 
 

@@ -174,7 +174,11 @@ def _portable_model(name: str, folder: Path) -> str:
             return name
         return f"derived:{_portable_model(parameter_set, folder)}"
     path = plant_path(name, beside=folder).resolve()
-    return name if path == plant_path(name).resolve() else str(path)
+    try:
+        shipped = plant_path(name).resolve()
+    except ConfigError:  # a name of the spec's own tree only
+        shipped = None
+    return name if path == shipped else str(path)
 
 
 def _controller_file(check: Checker, name: str, key: str, model) -> str:
