@@ -33,14 +33,9 @@ def cmd_build_fmu(args) -> int:
 
 
 def cmd_linearize(args) -> int:
-    from furuta_cosim.fmu.exporter import build_fmu
-    from furuta_cosim.fmu.linearize import linearize
-    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.models import linearize_plant
 
-    plant = load_plant(args.params)
-    fmu = build_fmu(plant)
-    result = linearize(fmu, parameters=dict(plant.parameters),
-                       inputs={name: 0.0 for name in args.inputs} if args.inputs else None)
+    plant, fmu, result = linearize_plant(args.params, args.inputs)
     if args.json:
         print(dumps(result.as_dict()))
         return 0
@@ -68,10 +63,6 @@ def cmd_validate_fmu(args) -> int:
     return EXIT_FAILED if failed else 0
 
 
-def _pairs(values) -> list:
-    return [[float(z.real), float(z.imag)] for z in values]
-
-
 def cmd_design_lqr(args) -> int:
     import numpy as np
 
@@ -84,14 +75,7 @@ def cmd_design_lqr(args) -> int:
     if design.path:
         print(f"wrote {design.path}", file=sys.stderr)
     cfile, model, analysis = design.cfile, design.model, design.analysis
-    controller = cfile.controller
-    K = controller.K
-    result = {"K": K[0].tolist() if K.shape[0] == 1 else K.tolist(),
-              "closed_loop_eigenvalues": _pairs(analysis.eigenvalues),
-              "time": "discrete" if controller.discrete else "continuous",
-              "period": controller.period, "model": model.name,
-              "stable": analysis.stable, "prefilter": {"output": cfile.tracked_output, "F": cfile.F},
-              "method": controller.provenance["method"]}
+    controller, K, result = cfile.controller, cfile.controller.K, design.as_dict()
     if args.json:
         print(dumps(result))
     else:
@@ -108,23 +92,11 @@ def _complex(z) -> str:
 
 
 def cmd_analyze(args) -> int:
-    from furuta_cosim.controllers import check_fits, default_output, load_controller
-    from furuta_cosim.design import analyze
     from furuta_cosim.design.linear import time_text
-    from furuta_cosim.errors import ConfigError
-    from furuta_cosim.models import load_model
+    from furuta_cosim.lqr_file import analyze_file
 
-    cfile = load_controller(args.controller)
-    model_name = args.model or cfile.model
-    if not model_name:
-        raise ConfigError([f"{cfile.source}: model: missing; name one with --model"])
-    # a model the file names resolves beside the file; one given with --model, from here
-    model = load_model(model_name, None if args.model or not cfile.path else cfile.path.parent)
-    cfile = check_fits(cfile, model)
-    c = cfile.controller
-    sampling = cfile.period if not c.discrete and cfile.period else None
-    analysis = analyze(model, c, sampling_period=sampling,
-                       tracked_output=cfile.tracked_output or default_output(model))
+    found = analyze_file(args.controller, args.model)
+    cfile, model, analysis, c = found.cfile, found.model, found.analysis, found.cfile.controller
     if args.json:
         print(dumps(analysis.as_dict()))
     else:
@@ -178,11 +150,10 @@ def _cell(metrics: dict, key: str) -> str:
 
 
 def _print_table(scenario, results, document) -> None:
+    from furuta_cosim.metrics import table_keys
+
     first = next(iter(results.values())).trace
-    keys = [f"{first.tracked}.{m}" for m in ("RiseTime", "SettlingTime", "Overshoot", "Peak")]
-    keys += ["error.IAE", "error.RMS", "u.peak_abs", "u.rms", "u.energy",
-             "theta1.max_abs", "theta1.SettlingTime"]
-    keys += [r.metric for r in scenario.requirements]
+    keys = table_keys(first.tracked, first.watched()) + [r.metric for r in scenario.requirements]
     entries = document["controllers"]
     names = list(entries)
     rows = [k for k in dict.fromkeys(keys) if any(k in entries[n]["metrics"] for n in names)]

@@ -1,6 +1,7 @@
-"""An LQR design as a controller file: the one place that turns a model, weights and a period
-into a checked, provenanced controller file (``furuta-cosim design lqr`` and
-``tools/regenerate_controllers.py`` both call :func:`design_lqr_file`)."""
+"""Controller files designed and analyzed: the one place that turns a model, weights and a
+period into a checked, provenanced LQR controller file (``furuta-cosim design lqr`` and
+``tools/regenerate_controllers.py`` both call :func:`design_lqr_file`), and the one that
+analyzes a controller file on the model it names (:func:`analyze_file`, ``analyze``)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from typing import Sequence
 
 import numpy as np
 
-from furuta_cosim.controllers import ControllerFile, default_output, save_controller
+from furuta_cosim.controllers import (ControllerFile, check_fits, default_output, load_controller,
+                                      save_controller)
 from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.design import analyze, lqr, prefilter
 from furuta_cosim.design.analysis import Analysis
@@ -28,6 +30,34 @@ class Design:
     model: LinearModel
     analysis: Analysis
     path: Path | None          # where the file was written, if it was
+
+    def as_dict(self) -> dict:
+        """What ``design lqr --json`` prints."""
+        controller, K = self.cfile.controller, self.cfile.controller.K
+        return {"K": K[0].tolist() if K.shape[0] == 1 else K.tolist(),
+                "closed_loop_eigenvalues": [[float(z.real), float(z.imag)]
+                                            for z in self.analysis.eigenvalues],
+                "time": "discrete" if controller.discrete else "continuous",
+                "period": controller.period, "model": self.model.name,
+                "stable": self.analysis.stable,
+                "prefilter": {"output": self.cfile.tracked_output, "F": self.cfile.F},
+                "method": controller.provenance["method"]}
+
+
+def analyze_file(controller: str | Path, model: str | None = None) -> Design:
+    """A controller file analyzed on ``model`` (given: resolved from here), or on the model
+    the file names (resolved beside the file)."""
+    cfile = load_controller(controller)
+    name = model or cfile.model
+    if not name:
+        raise ConfigError([f"{cfile.source}: model: missing; name one with --model"])
+    linear = load_model(name, None if model or not cfile.path else cfile.path.parent)
+    cfile = check_fits(cfile, linear)
+    c = cfile.controller
+    sampling = cfile.period if not c.discrete and cfile.period else None
+    analysis = analyze(linear, c, sampling_period=sampling,
+                       tracked_output=cfile.tracked_output or default_output(linear))
+    return Design(cfile, linear, analysis, cfile.path)
 
 
 def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,

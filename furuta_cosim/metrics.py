@@ -53,6 +53,21 @@ def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
     return result
 
 
+# what a table of a run shows first, by signal: the tracked output's step response, the
+# error's integrals, the input's size, and for the watched outputs (Trace.watched: those in the
+# tracked output's unit) their peak and settling
+TABLE = {"tracked": ("RiseTime", "SettlingTime", "Overshoot", "Peak"),
+         "error": ("IAE", "RMS"), "u": INPUT_METRICS, "watched": OUTPUT_METRICS}
+
+
+def table_keys(tracked: str, watched: Iterable[str] = ()) -> list[str]:
+    """The metric keys of :data:`TABLE` for a run tracking ``tracked`` (a table leaves out the
+    ones a run does not record)."""
+    keys = [f"{tracked}.{m}" for m in TABLE["tracked"]]
+    keys += [f"error.{m}" for m in TABLE["error"]] + [f"u.{m}" for m in TABLE["u"]]
+    return keys + [f"{name}.{m}" for name in watched for m in TABLE["watched"]]
+
+
 def checked(check, value, key: str) -> str | None:
     """A metric name read from a file, ``<signal>.<metric>``: its form and name, reported
     through ``check`` (a :class:`~furuta_cosim.config.Checker`) with its key. Which signals a

@@ -2,7 +2,7 @@
 
 - ``paper-printed``: the paper's printed (A, B, C) (``scenarios/plants/paper-printed.yaml``);
 - ``derived`` or ``derived:<parameter set>``: the linearization of the plant FMU at the
-  upright equilibrium, input V, outputs the measured theta0, theta1, i (as the paper's C);
+  upright equilibrium, input V, outputs the ones its model declares measured (the paper's C);
 - ``toy``: the paper's discrete toy plant;
 - any linear plant file (``model: linear``), by name in ``scenarios/plants`` or by path.
 """
@@ -16,9 +16,6 @@ import numpy as np
 from furuta_cosim.design.linear import LinearModel
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.plants import load_plant
-
-MEASURED = ("theta0", "theta1", "i")
-
 
 def load_model(name: str | Path = "paper-printed", beside: Path | None = None) -> LinearModel:
     """Resolve a model name or file to a :class:`LinearModel` (see the module docstring);
@@ -40,15 +37,30 @@ def load_model(name: str | Path = "paper-printed", beside: Path | None = None) -
 
 def derived(parameter_set: str | Path = "paper-calibrated", beside: Path | None = None) -> LinearModel:
     """The plant FMU linearized with ``parameter_set`` at the upright equilibrium."""
-    from furuta_cosim.fmu.exporter import build_fmu
+    from furuta_cosim.fmu.exporter import build_fmu, declaration
     from furuta_cosim.fmu.linearize import linearize
 
     plant = load_plant(parameter_set, beside=beside)
     if plant.linear is not None:
         raise ConfigError([f"{plant.path}: a linear plant has no 'derived' model; use its name"])
-    result = linearize(build_fmu(plant), parameters=dict(plant.parameters), inputs={"V": 0.0},
-                       outputs=list(MEASURED))
+    model = declaration(plant)
+    inputs = [v.name for v in model.reals if v.causality == "input"]
+    result = linearize(build_fmu(plant), parameters=dict(plant.parameters), inputs={inputs[0]: 0.0},
+                       outputs=list(model.measured) or None)
     name = "derived" if plant.name == "paper-calibrated" else f"derived:{plant.name}"
     return LinearModel(name, result.A, result.B, result.C, result.D, tuple(result.states),
                        tuple(result.inputs), tuple(result.outputs), 0.0,
                        {"linearized": plant.name})
+
+
+def linearize_plant(parameter_set: str | Path, inputs=None):
+    """The plant FMU of ``parameter_set`` built and linearized at its start state with the
+    ``inputs`` named (all, when None) at 0; returns (plant, fmu path, Linearization)."""
+    from furuta_cosim.fmu.exporter import build_fmu
+    from furuta_cosim.fmu.linearize import linearize
+
+    plant = load_plant(parameter_set)
+    fmu = build_fmu(plant)
+    result = linearize(fmu, parameters=dict(plant.parameters),
+                       inputs={name: 0.0 for name in inputs} if inputs else None)
+    return plant, fmu, result

@@ -121,3 +121,31 @@ def test_a_real_browser_opens_the_report(reproduction, runs, tmp_path, which):
     # not blank: many distinct shades, dark text on the light page
     assert shot.shape[0] > 500 and float(np.std(shot)) > 0.02
     assert float(np.min(shot[..., :3])) < 0.3
+
+
+def test_figures_and_tables_take_names_and_units_from_the_plant(tmp_path, capsys):
+    """No pendulum names in generic code: the rows and axes of a run come from the FMU's
+    declared units (the outputs in the tracked output's unit are watched) and the metric
+    catalogue's table, for this plant and for a plant that declares no units."""
+    import json
+
+    from furuta_cosim.cli import main
+    from furuta_cosim.cosim.result import RunResult
+    from furuta_cosim.metrics import table_keys
+    from furuta_cosim.report.figures import default_signals
+
+    assert main(["simulate", "paper-step", "-o", str(tmp_path / "step"), "--every", "10"]) == 0
+    printed = capsys.readouterr().out
+    document = json.loads((tmp_path / "step" / "metrics.json").read_text())
+    trace = RunResult.from_dict(document["controllers"]["lqr-paper"], base=tmp_path / "step").trace
+    assert trace.units["theta0"] == "rad" and trace.units["V"] == "V"
+    assert trace.watched() == ["theta1"]  # the only other output in rad
+    assert default_signals(trace) == ["theta0", "theta1", "u"]
+    assert trace.label("theta1") == "theta1 [rad]" and trace.label("u") == "V [V]"
+    assert trace.label("dtheta1") == "dtheta1 [rad/s]"
+    assert table_keys("theta0", ["theta1"])[-2:] == ["theta1.max_abs", "theta1.SettlingTime"]
+    assert "theta1.max_abs" in printed and "dtheta1.max_abs" not in printed
+
+    trace.units = {}  # a plant that declares no units: its tracked output and its input only
+    assert trace.watched() == [] and default_signals(trace) == ["theta0", "u"]
+    assert trace.label("theta1") == "theta1"

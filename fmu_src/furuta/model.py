@@ -36,6 +36,11 @@ STATES = [
 ]
 
 
+# the outputs a design model of this plant measures: the paper's C (arm angle, pendulum angle,
+# current); the ``derived`` models linearize to them
+MEASURED = ["theta0", "theta1", "i"]
+
+
 def declare(parameters):
     """Return the declaration; ``parameters`` maps each physical parameter to its start."""
     model = Model("Furuta", "Rotary inverted (Furuta) pendulum with DC motor, "
@@ -57,4 +62,5 @@ def declare(parameters):
                                     maximum=MAX_SUBSTEPS,
                                     description="RK4 substeps per communication step"))
     model.substeps = "n_substeps"
+    model.measured = list(MEASURED)
     return model

@@ -199,4 +199,4 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
     for j, name in enumerate(prepared.disturbances):
         signals[name] = prepared.disturbance[:n, j]
     return Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us), signals,
-                 prepared.tracked, prepared.control_input, failure)
+                 prepared.tracked, prepared.control_input, failure, dict(prepared.units))

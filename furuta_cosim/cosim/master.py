@@ -72,6 +72,7 @@ class Prepared:
     measured: list[str] = field(default_factory=list)
     kalman: tuple | None = None   # (Ad, Bd, C, M) of the steady-state filter
     metrics: dict = field(default_factory=dict)   # the metric catalogue of this run
+    units: dict = field(default_factory=dict)     # view name -> unit the FMU declares
     key: str = field(default_factory=lambda: uuid.uuid4().hex)
     _estimator: object = field(default=None, repr=False, compare=False)
 
@@ -237,7 +238,8 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     prepared = Prepared(scenario, plant, plant.name if plant else fmu_path.name, fmu_path, start,
                         outputs, signals, states, control_input, process_inputs, process,
                         tracked, period, step, steps, unit, t, rbar, disturbance, measurement,
-                        noisy, measured=measured, metrics=known)
+                        noisy, measured=measured, metrics=known,
+                        units=_units(variables, outputs, signals, control_input))
     if scenario.estimator:
         prepared.kalman = _kalman(prepared, state_outputs)
     return prepared
@@ -298,6 +300,19 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
     view_of = {target: name for name, target in named.items()}
     disturbances = {view_of.get(n, n): n for n in inputs if n != control_input}
     return outputs, signals, states, state_outputs, control_input, disturbances, list(disturbances)
+
+
+def _units(variables: dict, outputs, signals, control_input) -> dict[str, str]:
+    """The unit each recorded plant variable declares (on itself or its type), by its view
+    name; a variable without one is left out."""
+    def unit(variable) -> str | None:
+        declared = getattr(variable, "declaredType", None)
+        return variable.unit or (declared.unit if declared is not None else None)
+
+    named = dict(zip(signals, outputs))
+    if control_input in variables:
+        named[control_input] = control_input
+    return {name: unit(variables[target]) for name, target in named.items() if unit(variables[target])}
 
 
 def state_names_of(variables: dict) -> list[str]:

@@ -38,7 +38,7 @@ class RunResult:
         return {"scenario": self.scenario, "controller": self.controller, "failure": self.failure,
                 "passed": self.passed, "wall_time": self.wall_time, "time_unit": self.time_unit,
                 "tracked": self.trace.tracked, "input": self.trace.input_name,
-                "metrics": json_safe(self.metrics),
+                "units": dict(self.trace.units), "metrics": json_safe(self.metrics),
                 "requirements": json_safe(self.requirements),
                 "trace": str(trace_file) if trace_file else None}
 
@@ -62,6 +62,9 @@ class RunResult:
             trace = Trace(data["controller"], np.zeros(0), np.zeros(0), np.zeros(0), {},
                           data["tracked"], data.get("input", "u"))
         trace.failure = data.get("failure")
+        units = data.get("units")
+        if isinstance(units, dict):
+            trace.units = {str(k): str(v) for k, v in units.items() if isinstance(v, str)}
         metrics = {k: math.inf if v is None else float(v) for k, v in data["metrics"].items()}
         requirements = {k: {**v, "value": math.inf if v["value"] is None else v["value"]}
                         for k, v in data["requirements"].items()}

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +23,20 @@ class Trace:
     tracked: str
     input_name: str = "u"
     failure: str | None = None  # why the run stopped early; the trace holds what came before
+    units: dict[str, str] = field(default_factory=dict)  # signal -> unit its FMU declares
+
+    def watched(self) -> list[str]:
+        """The plant outputs besides the tracked one measured in its unit (for a pendulum on
+        an arm: the pendulum angle beside the arm's): what a figure or table shows first."""
+        unit = self.units.get(self.tracked)
+        return [name for name in self.signals if name != self.tracked and unit
+                and self.units.get(name) == unit]
+
+    def label(self, name: str) -> str:
+        """``name [unit]``, or the name when its FMU declares no unit."""
+        name = self.input_name if name == "u" else name
+        unit = self.units.get(name)
+        return f"{name} [{unit}]" if unit else name
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name in ("t", "r", "u"):

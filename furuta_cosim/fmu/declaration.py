@@ -93,6 +93,7 @@ class Model:
     substeps: str | None = None
     sample_period: str | None = None
     constants: dict[str, int] = field(default_factory=dict)
+    measured: list[str] = field(default_factory=list)  # outputs a design model measures (all: empty)
     # name -> value reference, kept as variables are registered (a linear plant or a controller
     # declares tens of thousands: a scan per registration made declaring quadratic)
     _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False)

@@ -1,7 +1,7 @@
 """Figures of co-simulation runs, controllers overlaid, as PNG and SVG.
 
 The layout follows the paper's figures: the tracked output with its reference, the other
-signals of interest (the pendulum angle), and the input.
+outputs in the tracked output's unit (the pendulum angle), and the input.
 """
 
 from __future__ import annotations
@@ -19,17 +19,10 @@ import numpy as np  # noqa: E402
 from furuta_cosim.cosim.trace import Trace  # noqa: E402
 from furuta_cosim.files import atomic  # noqa: E402
 
-LABELS = {"theta0": "arm angle θ0 [rad]", "theta1": "pendulum angle θ1 [rad]",
-          "dtheta0": "arm velocity [rad/s]", "dtheta1": "pendulum velocity [rad/s]",
-          "i": "current i [A]", "y": "output y", "V": "voltage V [V]"}
-
-
 def default_signals(trace: Trace) -> list[str]:
-    """The tracked output, the pendulum angle when there is one, and the input."""
-    signals = [trace.tracked]
-    if "theta1" in trace.signals and trace.tracked != "theta1":
-        signals.append("theta1")
-    return signals + ["u"]
+    """The tracked output, the outputs measured in its unit (the pendulum's angle beside the
+    arm's), and the input."""
+    return [trace.tracked, *trace.watched(), "u"]
 
 
 # points per line at most: a 600 s run at 2 ms has 300,000 samples, more than any screen shows
@@ -123,8 +116,7 @@ def figure_of_runs(traces: Mapping[str, Trace], title: str = "",
             axis.plot(t, r, "k--", linewidth=1.0, label="reference")
         if limits:
             axis.set_ylim(*limits)
-        label = first.input_name if name == "u" else name
-        axis.set_ylabel(LABELS.get(label, label))
+        axis.set_ylabel(first.label(name))
         axis.grid(True, alpha=0.3)
     axes[0, 0].legend(loc="best", fontsize="small")
     axes[-1, 0].set_xlabel(f"time [{time_unit}]")

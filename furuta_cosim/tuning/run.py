@@ -478,7 +478,8 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         lines += ["", "Metric by metric, on every scenario and plant variant:", ""]
         keys = list(dict.fromkeys([t.metric for t in spec.objective.terms]
                                   + [m for m, _ in spec.constraints.no_worse_than]
-                                  + ["error.ISE", "u.rms", "u.peak_abs", "theta1.max_abs"]))
+                                  + ["error.ISE", "u.rms", "u.peak_abs"]
+                                  + [f"{name}.max_abs" for name, _ in spec.constraints.max_abs]))
         names = [n for n, b in document["baselines"].items() if b.get("metrics")]
         lines.append("| run | metric | tuned | " + " | ".join(names) + " | tuned / " +
                      (names[0] if names else "-") + " |")
