@@ -203,8 +203,11 @@ def check_fits(cfile: ControllerFile, model: LinearModel) -> ControllerFile:
 
 
 def default_output(model: LinearModel) -> str:
-    """theta0 for the pendulum, else the model's first output."""
-    return "theta0" if "theta0" in model.states + model.outputs else model.outputs[0]
+    """The default tracked output (defaults.TRACKED_OUTPUT) when the model has it, else its
+    first output."""
+    from furuta_cosim.defaults import TRACKED_OUTPUT
+
+    return TRACKED_OUTPUT if TRACKED_OUTPUT in model.states + model.outputs else model.outputs[0]
 
 
 def controller_document(cfile: ControllerFile) -> dict:

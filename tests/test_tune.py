@@ -1,11 +1,13 @@
 """Tuning: specs validated strictly, the paper's spectral setup, the run directory, seeds."""
 
 import json
+import shutil
 
 import pytest
 import yaml
 
 from furuta_cosim import paths
+from furuta_cosim.errors import ConfigError
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
@@ -27,8 +29,7 @@ def test_paper_spectral_finds_a_stable_controller(tmp_path, capsys):
     assert {"lqr-paper", "bo-paper"} <= set(document["baselines"])
     records = history(tmp_path / "run")
     assert [r["index"] for r in records] == list(range(15))
-    assert set(records[0]) == {"index", "x", "parameters", "objective", "feasible", "constraints",
-                               "metrics", "wall_time", "worker", "error"}
+    assert set(records[0]) == history_keys()
     best = min((r for r in records if r["feasible"]), key=lambda r: r["objective"])
     assert best["objective"] == pytest.approx(document["best"]["objective"])
     for name in ("spec.yaml", "best.yaml", "summary.json", "summary.md", "convergence.png",
@@ -40,12 +41,15 @@ def test_paper_spectral_finds_a_stable_controller(tmp_path, capsys):
     assert "fastest mode, not the slowest" in (tmp_path / "run" / "summary.md").read_text()
 
 
+def strip(records):
+    """A history without what may differ between two runs of one seed (wall time, worker)."""
+    return [{k: v for k, v in r.items() if k not in ("wall_time", "worker")} for r in records]
+
+
 def test_the_same_seed_gives_the_same_history(tmp_path):
     spec = load_spec("paper-spectral")
     for name in ("a", "b"):
         tune(spec, tmp_path / name, n_calls=12, seed=3)
-    strip = lambda records: [{k: v for k, v in r.items() if k not in ("wall_time", "worker")}  # noqa: E731
-                             for r in records]
     assert strip(history(tmp_path / "a")) == strip(history(tmp_path / "b"))
     tune(spec, tmp_path / "c", n_calls=12, seed=4)
     assert strip(history(tmp_path / "c")) != strip(history(tmp_path / "a"))
@@ -186,6 +190,10 @@ def test_a_killed_run_resumes_to_exactly_n_calls(tmp_path):
     assert [r["index"] for r in records] == list(range(40))          # none lost, none twice
     assert len({tuple(r["x"]) for r in records}) == 40
     assert json.loads((run / "summary.json").read_text())["evaluations"] == 40
+    # and the history is the uninterrupted run's
+    whole = tmp_path / "whole"
+    subprocess.run(command[:-1] + [str(whole)], check=True, capture_output=True)
+    assert strip(records) == strip(history(whole))
 
 
 def test_a_worker_that_raises_or_dies_fails_only_its_evaluation(tmp_path, monkeypatch):
@@ -245,8 +253,8 @@ def test_differential_evolution_keeps_the_budget_and_the_history_format(tmp_path
 
 
 def history_keys():
-    return {"index", "x", "parameters", "objective", "feasible", "constraints", "metrics",
-            "wall_time", "worker", "error"}
+    return {"index", "x", "parameters", "objective", "feasible", "value", "margin", "constraints",
+            "metrics", "origin", "surrogate", "wall_time", "worker", "error"}
 
 
 @pytest.mark.slow
@@ -300,3 +308,94 @@ def test_resume_refuses_another_spec_method_or_seed(tmp_path, capsys):
     code, _, err = run_cli(capsys, "tune", "paper-spectral", "-o", str(tmp_path / "run"), "--resume",
                            "--n-calls", "6", "--workers", "1")
     assert code == 0 and len(history(tmp_path / "run")) == 6
+
+
+def batched(tmp_path, batch=3):
+    """paper-spectral with batches of ``batch`` and a short initial design."""
+    path = tmp_path / f"spectral-batch{batch}.yaml"
+    path.write_text(SPEC.read_text().replace("seed: 0", f"seed: 0\n  batch: {batch}")
+                    .replace("n_initial_points: 10", "n_initial_points: 5"))
+    return load_spec(path)
+
+
+@pytest.mark.parametrize("method", ["bo", "random", "de"])
+def test_the_history_depends_on_neither_the_workers_nor_an_interruption(tmp_path, method):
+    """Workers change only the speed: one history for 1 and 2 workers; a run cut after any
+    evaluation (in the design, in the middle of a batch, at a batch's end) and resumed writes
+    the uninterrupted run's history."""
+    spec = batched(tmp_path)
+    assert "batch: 3" in spec.path.read_text()
+    one = tune(spec, tmp_path / "one", method=method, n_calls=20, workers=1)
+    two = tune(spec, tmp_path / "two", method=method, n_calls=20, workers=2)
+    whole = strip(history(tmp_path / "one"))
+    assert whole == strip(history(tmp_path / "two"))
+    assert one["best"] == two["best"]
+    lines = (tmp_path / "one" / "history.jsonl").read_text().splitlines(keepends=True)
+    for cut in (3, 7, 9, 13):   # design; batch 0's middle; batch 1's start; batch 2's middle
+        folder = tmp_path / f"cut{cut}"
+        shutil.copytree(tmp_path / "one", folder)
+        for name in ("summary.json", "summary.md", "best.yaml"):
+            (folder / name).unlink()
+        # what a kill -9 leaves: the lines so far, the next one torn
+        (folder / "history.jsonl").write_text("".join(lines[:cut]) + lines[cut][:25])
+        tune(spec, folder, method=method, n_calls=20, workers=1, resume=True)
+        assert strip(history(folder)) == whole, cut
+
+
+def test_a_resumed_history_from_another_optimizer_is_refused(tmp_path):
+    """--resume proposes again the design and the batch it continues: a history that is not
+    this run's there is refused, and nothing is changed."""
+    spec = batched(tmp_path)
+    tune(spec, tmp_path / "run", n_calls=7, workers=1)   # the design, and 2 of batch 0's 3
+    path = tmp_path / "run" / "history.jsonl"
+    records = history(tmp_path / "run")
+    records[6]["x"][0] = records[6]["x"][0] * 0.5 + 0.1   # not the point this run proposes
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    with pytest.raises(ConfigError, match="evaluation 6 of the history is not the point"):
+        tune(spec, tmp_path / "run", n_calls=12, workers=1, resume=True)
+    assert len(history(tmp_path / "run")) == 7
+
+
+def test_baselines_and_initial_controllers_start_the_search(tmp_path):
+    """lqr-paper enters the design of effort as its design point (continuous here), bo-paper
+    (Cc fixed to another matrix) is named with the reason, and the best is never worse than
+    the baseline's point."""
+    path = tmp_path / "effort-initial.yaml"
+    path.write_text((paths.scenarios() / "tuning" / "effort.yaml").read_text()
+                    .replace("  seed: 0\n", "  seed: 0\n  initial: [bo-paper]\n"))
+    lines = []
+    document = tune(load_spec(path), tmp_path / "run", n_calls=3, workers=1, log=lines.append)
+    records = history(tmp_path / "run")
+    assert records[0]["origin"] == "baseline lqr-paper"
+    assert [r["origin"] for r in records[1:]] == ["initial design"] * 2
+    assert any(line.startswith("baseline lqr-paper: in the initial design, as its design (the same "
+                               "Q and R on paper-printed, continuous here): gain within") for line in lines)
+    assert "initial bo-paper: not in the initial design: Cc: fixed in the search to another matrix" in lines
+    assert records[0]["parameters"]["Dc.q2"] == pytest.approx(2.0)     # log10 100
+    assert records[0]["parameters"]["Bc[0][2]"] == 0.0
+    assert document["best"]["objective"] <= records[0]["objective"]
+    summary = (tmp_path / "run" / "summary.md").read_text()
+    assert f"from {document['best']['origin']} (best.yaml, prefilter F = " in summary
+
+
+def test_the_best_file_reruns_to_its_recorded_metrics(tmp_path, capsys):
+    """best.yaml carries everything the scoring used, the prefilter included: simulate of each
+    scenario of the spec reproduces the metrics recorded for that evaluation (1e-9)."""
+    document = tune(load_spec("effort"), tmp_path / "run", n_calls=4, workers=1)
+    best = document["best"]
+    assert best and best["prefilter"]["output"] == "theta0" and best["prefilter"]["F"] < 0
+    for scenario in ("paper-tracking", "sine", "noise"):
+        code, out, err = run_cli(capsys, "simulate", scenario, "--controller",
+                                 str(tmp_path / "run" / "best.yaml"), "-o", str(tmp_path / scenario),
+                                 "--no-trace", "--json")
+        assert code in (0, 1), err
+        metrics = json.loads(out)["controllers"]["effort-best"]["metrics"]
+        recorded = best["metrics"][scenario]
+        assert set(recorded) <= set(metrics)
+        for key, value in recorded.items():
+            if value is None:
+                assert metrics[key] is None, key
+            else:
+                assert metrics[key] == pytest.approx(value, rel=1e-9, abs=1e-12), (scenario, key)
+    # the reference moves the arm: a wrong-signed prefilter could not reproduce error.ISE
+    assert best["metrics"]["paper-tracking"]["error.ISE"] < 3.0

@@ -1,236 +1,285 @@
-"""What a tuning run costs and what each optimizer finds, measured in one run.
+"""Tuning measured as the README reports it: each optimizer over 10 seeds at the same budget,
+beside the LQR scored alike and the best value known, in one run.
 
-    python tools/bench_tune.py [--seeds 5] [--calls 150] [--skip-default] [--only spectral|effort]
-                               [--lever NAME=VALUE ...] [--effort-seeds N]
+    python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--calls 150]
+                               [--workers 2] [--methods ours,global,before,random,de,skopt]
+                               [--best-known 3000] [--before REV] [--kernel NAME] [-o FOLDER]
 
-- paper-spectral (12 parameters), serial: wall time split into optimizer and evaluation
-  time, optimizer seconds per iteration (median, last and mean), for our GP configuration and for
-  scikit-optimize's defaults (gp_minimize's: GP with noise fitted, 2 restarts, lbfgs EI);
-- best objective over the seeds for bo, bo with skopt's defaults, random and de at the same
-  budget, and de with 2,000 evaluations;
-- effort (150 calls, 3 scenarios): wall time with 1 worker and with 2, and the speed-up; and
-  with 2 workers but scikit-optimize's ask(n) for the batches instead of ours; with
-  --effort-seeds N, each 2-worker run over seeds 0..N-1 (wall time and best of each).
+Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``):
 
-``--lever NAME=VALUE`` (repeatable) adds a row of bo with our settings but that one, measured in
-the same run as ours: ``gp_restarts`` (random starts of each GP refit, instead of the spec's
-optimizer.gp_restarts), ``ei_starts`` (L-BFGS starts maximizing EI) and ``blas_threads`` (the
-optimizer's BLAS threads; paper-spectral only, where no worker would inherit the patch).
+- ``ours``: ``bo`` as shipped (constrained BO, ``optimizer.region: trust``);
+- ``global``: the same with ``region: global``, the alternative the trust region is measured
+  against;
+- ``before``: ``furuta-cosim tune`` of revision REV (default: the last one before constrained
+  BO), run from a git worktree of this repository with ``--workers`` workers;
+- ``random``, ``de``: random search and scipy's differential evolution, same budget;
+- ``skopt``: scikit-optimize's ``gp_minimize`` defaults (GP, gp_hedge, 10 random initial
+  points), told the penalized objective (``penalty + violation`` when infeasible), one point
+  at a time;
+- the spec's first baseline (the LQR) scored alike, and the best known: differential evolution
+  with ``--best-known`` evaluations (seed 0), or any run's best if lower.
+
+For each row: the best per seed, median, worst, and on how many seeds it is at least as good as
+the LQR; for ``ours``, the optimizer's seconds per iteration (median over every point of every
+seed: fitting the surrogates shared by the points of a batch, plus the point's acquisition).
+``--kernel NAME`` runs the ``ours`` rows again under OPENBLAS_CORETYPE=NAME (a child process)
+and prints the spread of each seed's best between the two BLAS kernels. Every run's folder
+stays under ``-o`` (default: a new temporary folder) with bench.json, the table as data.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import re
+import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
-from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
+from furuta_cosim.errors import ConfigError
 from furuta_cosim.tuning import optimizers
-from furuta_cosim.tuning import run as tuning
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
-optimizers_make = optimizers.make
-LEVERS = ("gp_restarts", "ei_starts", "blas_threads")
+ROOT = Path(__file__).resolve().parent.parent
+METHODS = ("ours", "global", "before", "random", "de", "skopt")
+BEFORE = "8804270"  # the last revision before constrained BO (scikit-optimize's GP + EI, penalized)
 
 
-class SkoptDefaults:
-    """scikit-optimize's own GP set-up (and its ask(n) for batches), for comparison."""
+class Timer:
+    """Optimizer seconds per proposed point: ConstrainedBO's fits and acquisitions, timed."""
 
-    def __init__(self, dimensions, method, seed, *, xi, n_initial_points, **ours):
-        from skopt import Optimizer
+    def __init__(self):
+        self.points: list[float] = []
+        self._propose = optimizers.ConstrainedBO.propose
 
-        self.optimizer = Optimizer(dimensions, base_estimator="GP", acq_func="EI",
-                                   acq_func_kwargs={"xi": xi}, n_initial_points=n_initial_points,
-                                   random_state=seed)
+    def __enter__(self):
+        timer, propose = self, self._propose
 
-    def batch(self, count):
-        yield from self.optimizer.ask(count) if count > 1 else [self.optimizer.ask()]
+        def timed(bo, *args, **kwargs):
+            started = time.perf_counter()
+            proposal = propose(bo, *args, **kwargs)
+            fitting, first = time.perf_counter() - started, [True]
+            inner = proposal._next
 
-    def tell(self, xs, ys):
-        self.optimizer.tell(xs, ys)
+            def next_point():
+                began = time.perf_counter()
+                point = inner()
+                timer.points.append(time.perf_counter() - began + (fitting if first[0] else 0.0))
+                first[0] = False
+                return point
 
-    replay = tell
+            proposal._next = next_point
+            return proposal
+
+        optimizers.ConstrainedBO.propose = timed
+        return self
+
+    def __exit__(self, *exc):
+        optimizers.ConstrainedBO.propose = self._propose
 
 
-def skopt_batches(dimensions, method, seed, **settings):
-    """Our GP, with scikit-optimize's ask(n) for batches (a copy of the optimizer, refitted,
-    then one fit per point): what the batch strategy of BayesOptimizer saves."""
+def ours(spec, folder: Path, seed: int, calls: int, workers: int, region: str, timer=None) -> dict:
+    from dataclasses import replace
+
+    spec = replace(spec, optimizer=replace(spec.optimizer, region=region))
+    return tune(spec, folder, method="bo", n_calls=calls, seed=seed, workers=workers)
+
+
+def plain(spec, folder: Path, seed: int, calls: int, workers: int, method: str) -> dict:
+    return tune(spec, folder, method=method, n_calls=calls, seed=seed, workers=workers)
+
+
+def before(spec_name: str, folder: Path, seed: int, calls: int, workers: int, worktree: Path) -> dict:
+    """``furuta-cosim tune`` of the revision in ``worktree``, in a child process."""
+    environment = {**os.environ, "PYTHONPATH": str(worktree)}
+    command = [sys.executable, "-m", "furuta_cosim", "tune", spec_name, "-o", str(folder),
+               "--seed", str(seed), "--n-calls", str(calls), "--workers", str(workers)]
+    done = subprocess.run(command, env=environment, capture_output=True, text=True, cwd=worktree)
+    if done.returncode not in (0, 1):
+        raise RuntimeError(f"{' '.join(command)}: exit {done.returncode}\n{done.stderr[-2000:]}")
+    return json.loads((folder / "summary.json").read_text())
+
+
+def skopt(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
+    """scikit-optimize's gp_minimize defaults on the spec's space, one point at a time."""
+    import warnings
+
     from skopt import Optimizer
 
-    optimizer = optimizers_make(dimensions, method, seed, **settings)
+    from furuta_cosim.tuning.executors import Processes, Serial
+    from furuta_cosim.tuning.objective import Evaluator
 
-    def batch(count):
-        yield from Optimizer.ask(optimizer, count)
-
-    optimizer.batch = batch
-    return optimizer
-
-
-@contextmanager
-def patched(make):
-    """tuning runs with optimizers made by ``make``."""
-    optimizers.make = make
+    evaluator = Evaluator(spec)
+    executor = Processes(spec, workers) if workers > 1 else Serial(spec, evaluator)
+    optimizer = Optimizer(evaluator.space.dimensions(), base_estimator="GP", acq_func="gp_hedge",
+                          acq_optimizer="lbfgs", n_initial_points=10,
+                          initial_point_generator="random", random_state=seed)
+    best = None
     try:
-        yield
+        for _ in range(calls):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                x = optimizer.ask()
+                outcome = executor.gather([executor.submit(x)])[0]
+                optimizer.tell(x, outcome.objective)
+            if outcome.feasible and (best is None or outcome.objective < best):
+                best = outcome.objective
     finally:
-        optimizers.make = optimizers_make
+        executor.close()
+    folder.mkdir(parents=True, exist_ok=True)
+    document = {"best": {"objective": best} if best is not None else None}
+    (folder / "summary.json").write_text(json.dumps(document) + "\n")
+    return document
 
 
-@contextmanager
-def lever(name: str, value: int):
-    """tuning runs with our settings except ``name`` = ``value``."""
-    if name == "gp_restarts":
-        with patched(lambda *args, **settings: optimizers_make(*args, **{**settings, "gp_restarts": value})):
-            yield
-    elif name == "ei_starts":
-        before = optimizers.ACQUISITION["n_restarts_optimizer"]
-        optimizers.ACQUISITION["n_restarts_optimizer"] = value
-        try:
-            yield
-        finally:
-            optimizers.ACQUISITION["n_restarts_optimizer"] = before
-    else:                                   # blas_threads: run.py's threadpool_limits(1), widened
-        import threadpoolctl
-
-        original = threadpoolctl.threadpool_limits
-        threadpoolctl.threadpool_limits = lambda limits=None, user_api=None: original(value, user_api)
-        try:
-            yield
-        finally:
-            threadpoolctl.threadpool_limits = original
+def worktree(revision: str, work: Path) -> Path:
+    path = work / f"before-{revision}"
+    if not path.exists():
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(path), revision],
+                       check=True)
+    return path
 
 
-def slug(label: str) -> str:
-    """``label`` as a folder name."""
-    return re.sub(r"[^A-Za-z0-9=_-]+", "-", label).strip("-")
+def best_of(document: dict) -> float | None:
+    return document["best"]["objective"] if document.get("best") else None
 
 
-def parse_lever(text: str) -> tuple[str, int]:
-    name, _, value = text.partition("=")
-    if name not in LEVERS or not value.isdigit():
-        raise argparse.ArgumentTypeError(f"expected NAME=INTEGER with NAME one of {', '.join(LEVERS)}, "
-                                         f"got {text!r}")
-    return name, int(value)
+def measure(args, work: Path) -> dict:
+    results: dict = {}
+    timer = Timer()
+    tree = worktree(args.before, work) if "before" in args.methods else None
+    for name in args.specs:
+        spec = load_spec(name)
+        rows, lqr = {}, None
+        for method in args.methods:
+            for seed in range(args.seeds):
+                folder = work / Path(name).stem / method / f"seed-{seed}"
+                started = time.perf_counter()
+                if method in ("ours", "global"):
+                    region = "trust" if method == "ours" else "global"
+                    with timer if method == "ours" else _nothing():
+                        document = ours(spec, folder, seed, args.calls, args.workers, region)
+                elif method == "before":
+                    document = before(name, folder, seed, args.calls, args.workers, tree)
+                elif method == "skopt":
+                    document = skopt(spec, folder, seed, args.calls, args.workers)
+                else:
+                    document = plain(spec, folder, seed, args.calls, args.workers, method)
+                rows.setdefault(method, []).append(best_of(document))
+                for baseline in (document.get("baselines") or {}).values():
+                    if lqr is None and baseline.get("feasible"):
+                        lqr = baseline["objective"]
+                print(f"  {name} {method} seed {seed}: best {rows[method][-1]}, "
+                      f"{time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
+        known = None
+        if args.best_known:
+            started = time.perf_counter()
+            document = plain(spec, work / Path(name).stem / "best-known", 0, args.best_known,
+                             args.workers, "de")
+            known = best_of(document)
+            print(f"  {name} de {args.best_known}: best {known}, {time.perf_counter() - started:.1f} s",
+                  file=sys.stderr, flush=True)
+        found = [v for values in rows.values() for v in values if v is not None]
+        if found and (known is None or min(found) < known):
+            known = min(found)
+        results[name] = {"rows": rows, "lqr": lqr, "best_known": known,
+                         "best_known_evaluations": args.best_known}
+    results["optimizer_seconds_per_iteration"] = timer.points
+    return results
 
 
-def timed_run(spec, folder, **options) -> tuple[dict, list[float], float]:
-    """A run, its summary, the optimizer's seconds per iteration, and its wall time."""
-    per_iteration = []
-    original = tuning._ask_tell
+class _nothing:
+    def __enter__(self):
+        return self
 
-    def measured(spec_, evaluator, executor, history, n_calls, seed, method, batch, clock, progress):
-        last = [clock["optimizer"]]
+    def __exit__(self, *exc):
+        return False
 
-        def report(*args):
-            per_iteration.append(clock["optimizer"] - last[0])
-            last[0] = clock["optimizer"]
 
-        return original(spec_, evaluator, executor, history, n_calls, seed, method, batch, clock, report)
+def table(results: dict, args) -> list[str]:
+    lines = []
+    for name, data in results.items():
+        if not isinstance(data, dict) or "rows" not in data:
+            continue
+        lqr, known = data["lqr"], data["best_known"]
+        lines += ["", f"{name}: best objective over seeds 0-{args.seeds - 1}, {args.calls} calls "
+                      f"(lower is better); LQR scored alike {_f(lqr)}; best known {_f(known)} "
+                      f"(de with {data['best_known_evaluations']} evaluations, or any run's best)",
+                  "", "| method | median | worst | median vs best known | seeds <= LQR | per seed |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for method, values in data["rows"].items():
+            found = [v for v in values if v is not None]
+            median = statistics.median(found) if found else None
+            worst = max(found) if len(found) == len(values) and found else None
+            versus = f"{(median / known - 1) * 100:+.2f} %" if median and known else "-"
+            beat = sum(1 for v in values if v is not None and lqr is not None and v <= lqr)
+            lines.append(f"| {method} | {_f(median)} | {_f(worst) if worst else 'none found on some seed'} | "
+                         f"{versus} | {beat}/{len(values)} | {' '.join(_f(v) for v in values)} |")
+    per = results.get("optimizer_seconds_per_iteration") or []
+    if per:
+        lines += ["", f"ours: optimizer seconds per iteration, median {statistics.median(per):.3f}, "
+                      f"mean {statistics.mean(per):.3f}, max {max(per):.3f} ({len(per)} points)"]
+    return lines
 
-    tuning._ask_tell = measured
-    try:
-        started = time.perf_counter()
-        document = tune(spec, folder, **options)
-        return document, per_iteration, time.perf_counter() - started
-    finally:
-        tuning._ask_tell = original
+
+def _f(value) -> str:
+    return "none" if value is None else f"{value:.4f}"
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--specs", nargs="+", default=["effort", "robust-effort"])
+    parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--calls", type=int, default=150)
-    parser.add_argument("--skip-default", action="store_true", help="leave out skopt's defaults (slow)")
-    parser.add_argument("--only", choices=("spectral", "effort"), help="run one of the two parts")
-    parser.add_argument("--lever", type=parse_lever, action="append", default=[], metavar="NAME=VALUE",
-                        help=f"a row of bo with this one setting changed ({', '.join(LEVERS)})")
-    parser.add_argument("--effort-seeds", type=int, default=1, help="seeds of each 2-worker effort run")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--methods", default=",".join(METHODS),
+                        type=lambda text: [m for m in text.split(",") if m])
+    parser.add_argument("--best-known", type=int, default=3000, help="evaluations of the de run (0: none)")
+    parser.add_argument("--before", default=BEFORE, help="the revision of the 'before' row")
+    parser.add_argument("--kernel", help="rerun 'ours' under OPENBLAS_CORETYPE=KERNEL and compare")
+    parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one)")
+    parser.add_argument("--json", help=argparse.SUPPRESS)  # a child's results (--kernel)
     args = parser.parse_args()
-    print(f"our settings: gp_restarts as each spec, EI {optimizers.ACQUISITION}, optimizer BLAS threads 1")
-    work = Path(tempfile.mkdtemp(prefix="bench-tune-"))
-    if args.only != "effort":
-        spectral_part(args, work)
-    if args.only != "spectral":
-        effort_part(args, work)
-    print(json.dumps({"work": str(work)}), file=sys.stderr)
+    unknown = [m for m in args.methods if m not in METHODS]
+    if unknown:
+        parser.error(f"--methods: unknown {', '.join(unknown)} (expected: {', '.join(METHODS)})")
+    work = Path(args.output) if args.output else Path(tempfile.mkdtemp(prefix="bench-tune-"))
+    work.mkdir(parents=True, exist_ok=True)
+    print(f"runs in {work}; OPENBLAS_CORETYPE={os.environ.get('OPENBLAS_CORETYPE', '(default)')}",
+          file=sys.stderr)
+    try:
+        results = measure(args, work)
+    except ConfigError as error:
+        print("\n".join(error.problems), file=sys.stderr)
+        return 2
+    (work / "bench.json").write_text(json.dumps(results, indent=1) + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results) + "\n")
+        return 0
+    print("\n".join(table(results, args)))
+    if args.kernel:
+        child = work / f"kernel-{args.kernel}"
+        command = [sys.executable, __file__, "--specs", *args.specs, "--seeds", str(args.seeds),
+                   "--calls", str(args.calls), "--workers", str(args.workers), "--methods", "ours",
+                   "--best-known", "0", "-o", str(child), "--json", str(child / "results.json")]
+        subprocess.run(command, env={**os.environ, "OPENBLAS_CORETYPE": args.kernel}, check=True)
+        other = json.loads((child / "results.json").read_text())
+        print(f"\nours under OPENBLAS_CORETYPE={args.kernel} against the default kernel:")
+        for name in args.specs:
+            mine, theirs = results[name]["rows"].get("ours", []), other[name]["rows"]["ours"]
+            same = sum(1 for a, b in zip(mine, theirs) if a == b)
+            spread = [abs(a - b) / a for a, b in zip(mine, theirs) if a and b]
+            lqr = results[name]["lqr"]
+            flips = sum(1 for a, b in zip(mine, theirs)
+                        if a is not None and b is not None and lqr is not None and (a <= lqr) != (b <= lqr))
+            print(f"  {name}: {same}/{len(mine)} seeds identical; largest relative difference of a "
+                  f"seed's best {max(spread, default=0):.2e}; median {statistics.median(theirs):.4f} "
+                  f"against {statistics.median(mine):.4f}; verdicts against the LQR flipped: {flips}")
     return 0
-
-
-def spectral_part(args, work: Path) -> None:
-    spectral = load_spec("paper-spectral")
-    # (label, method, context factory)
-    runs = [("bo", "bo", nullcontext), ("random", "random", nullcontext), ("de", "de", nullcontext)]
-    if not args.skip_default:
-        runs.append(("bo-skopt-defaults", "bo", lambda: patched(SkoptDefaults)))
-    runs += [(f"bo, {name}={value}", "bo", lambda name=name, value=value: lever(name, value))
-             for name, value in args.lever]
-    rows, best = [], {}
-    for label, method, context in runs:
-        for seed in range(args.seeds):
-            with context():
-                document, per, wall = timed_run(spectral, work / slug(f"{label}-{seed}"),
-                                                method=method, n_calls=args.calls, seed=seed)
-            best.setdefault(label, []).append(document["best"]["objective"] if document["best"] else None)
-            if seed == 0:
-                nan = float("nan")
-                rows.append((label, wall, document["optimizer_seconds"], document["evaluation_seconds"],
-                             statistics.median(per) if per else nan, per[-1] if per else nan,
-                             statistics.mean(per) if per else nan))
-            print(f"  {label} seed {seed}: best {best[label][-1]}, {wall:.1f} s", file=sys.stderr, flush=True)
-    de_long, _, de_wall = timed_run(spectral, work / "de-2000", method="de", n_calls=2000, seed=0)
-
-    print(f"paper-spectral, {args.calls} calls, serial (seed 0)")
-    print(f"{'method':24s} {'wall s':>8s} {'optimizer s':>12s} {'evaluation s':>13s} {'s/iter median':>14s} "
-          f"{'s/iter last':>12s} {'s/iter mean':>12s} {'mean vs bo':>11s}")
-    ours_mean = rows[0][6]
-    for label, wall, optimizer_s, evaluation_s, median, last, mean in rows:
-        print(f"{label:24s} {wall:8.1f} {optimizer_s:12.1f} {evaluation_s:13.2f} {median:14.3f} {last:12.3f} "
-              f"{mean:12.3f} {mean / ours_mean:10.2f}x")
-    print(f"\nbest objective over seeds 0..{args.seeds - 1} (lower is better; the paper's objective)")
-    for label, values in best.items():
-        found = [v for v in values if v is not None]
-        print(f"{label:24s} " + " ".join(f"{v:9.3f}" if v is not None else "     none" for v in values)
-              + (f"   median {statistics.median(found):.3f}, worst {max(found):.3f}" if found else ""))
-    print(f"{'de, 2000 evaluations':24s} {de_long['best']['objective']:9.3f}   ({de_wall:.1f} s)")
-
-
-def effort_part(args, work: Path) -> None:
-    effort = load_spec("effort")
-    one_doc, _, one = timed_run(effort, work / "effort-1", n_calls=args.calls, workers=1)
-    runs = [("2 workers", nullcontext), ("2 workers, skopt's ask(n) batches", lambda: patched(skopt_batches))]
-    runs += [(f"2 workers, {name}={value}", lambda name=name, value=value: lever(name, value))
-             for name, value in args.lever if name != "blas_threads"]
-    results = {}                            # label -> [(wall, document)] over the seeds
-    for label, context in runs:
-        for seed in range(args.effort_seeds):
-            with context():
-                document, _, wall = timed_run(effort, work / slug(f"effort-{label}-{seed}"),
-                                              n_calls=args.calls, workers=2, seed=seed)
-            results.setdefault(label, []).append((wall, document))
-            print(f"  effort {label} seed {seed}: {wall:.1f} s", file=sys.stderr, flush=True)
-
-    def best_of(document):
-        return document["best"]["objective"] if document["best"] else float("nan")
-
-    print(f"\neffort, {args.calls} calls (seed 0)")
-    print(f"{'run':36s} {'wall s':>8s} {'optimizer s':>12s} {'waiting s':>10s} {'vs 1 worker':>12s} {'best':>9s}")
-    for label, (wall, document) in [("1 worker", (one, one_doc))] + [(k, v[0]) for k, v in results.items()]:
-        print(f"{label:36s} {wall:8.1f} {document['optimizer_seconds']:12.1f} "
-              f"{document['evaluation_seconds']:10.1f} {one / wall:11.2f}x {best_of(document):9.4f}")
-    if args.effort_seeds > 1:
-        print(f"\neffort, {args.calls} calls, 2 workers, seeds 0..{args.effort_seeds - 1}: wall s and best")
-        for label, found in results.items():
-            walls = [wall for wall, _ in found]
-            bests = [best_of(document) for _, document in found]
-            print(f"{label:36s} " + " ".join(f"{w:5.1f}" for w in walls)
-                  + "  |  " + " ".join(f"{b:.4f}" for b in bests)
-                  + f"  |  median {statistics.median(walls):.1f} s, best {statistics.median(bests):.4f}")
 
 
 if __name__ == "__main__":

@@ -56,9 +56,11 @@ def _save(figure, path: str | Path, dpi: int) -> list[Path]:
     return written
 
 
-def plot_convergence(records: Sequence[Mapping], path: str | Path) -> list[Path]:
+def plot_convergence(records: Sequence[Mapping], path: str | Path,
+                     levels: Mapping[str, float] | None = None) -> list[Path]:
     """A tuning's convergence (each evaluation's objective, infeasible ones marked, the best
-    so far) as ``path``.png and .svg; ``records`` are its history lines."""
+    so far) as ``path``.png and .svg; ``records`` are its history lines, ``levels`` the
+    baselines' scores (a dashed line each)."""
     index = [r["index"] for r in records]
     values = np.array([r["objective"] if r["feasible"] else np.nan for r in records])
     running = np.fmin.accumulate(np.where(np.isnan(values), np.inf, values))
@@ -71,6 +73,9 @@ def plot_convergence(records: Sequence[Mapping], path: str | Path) -> list[Path]
                   label="infeasible")
     axis.step(index, np.where(np.isfinite(running), running, np.nan), where="post", color="C3",
               label="best so far")
+    for k, (name, level) in enumerate((levels or {}).items()):
+        axis.axhline(level, linestyle="--", linewidth=1.0, color=f"C{(k + 4) % 10}",
+                     label=f"{name} (scored alike)")
     axis.set_xlabel("evaluation")
     axis.set_ylabel("objective")
     axis.grid(True, alpha=0.3)

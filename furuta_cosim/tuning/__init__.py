@@ -1,2 +1,4 @@
-"""Tuning controllers by Bayesian optimization (scikit-optimize's GP + Expected Improvement)
-over a spec: a search space of generalized controllers, an objective, constraints."""
+"""Tuning controllers by constrained Bayesian optimization (Gaussian processes of the objective
+and of the feasibility margin, Expected Improvement times the probability of feasibility, in a
+trust region) over a spec: a search space of generalized controllers, an objective,
+constraints."""

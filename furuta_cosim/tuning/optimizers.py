@@ -1,132 +1,287 @@
-"""Where a tuning's candidates come from: scikit-optimize's GP + Expected Improvement, or
-uniform random draws, behind one interface: ``batch(count)`` hands out the points of a batch
-one at a time (so a worker can start on the first while the next is computed), ``tell(xs, ys)``
-gives back what they scored.
+"""Where a tuning's candidates come from.
 
-:class:`BayesOptimizer` is scikit-optimize's ``Optimizer`` with two costs cut:
+``bo`` is constrained Bayesian optimization after Gardner, Kusner, Xu, Weinberger and
+Cunningham, "Bayesian Optimization with Inequality Constraints" (ICML 2014), the method
+BoTorch's ``ConstrainedExpectedImprovement`` implements: two Gaussian processes (scikit-learn's,
+a Matern 5/2 kernel with a length scale per parameter, on the unit cube):
 
-- a batch: scikit-optimize's ``ask(n)`` copies the optimizer (a full refit and acquisition
-  over again) and then fits once per point with a made-up observation (the constant lie), the
-  last of those unused: n + 1 fits and acquisitions for n points. ``batch`` tells the lie to
-  the optimizer itself, with the GP only conditioning on it (no hyperparameter fit), and takes
-  the lies back when the batch is out: n - 1 fits, the real tell makes the n-th.
-- sampling: at every tell 2,000 points are drawn and transformed to the unit cube through
-  Python lists of lists; over real dimensions the same draws are packed as arrays.
+- one of the objective, on every evaluated point where it could be computed, feasible or
+  not: near the boundary of the feasible set, where the best controllers are, the infeasible
+  side tells as much about the objective as the feasible one;
+- one of the feasibility margin (tuning/objective.py: the largest normalized constraint
+  slack, <= 0 when every constraint is met), on every point: failures count as clearly
+  infeasible.
 
-The points are scikit-optimize's constant-liar points (lie: the best value so far), not
-bit-for-bit the ones its ``ask(n)`` returns (that one draws from a fresh random state).
+The acquisition is Expected Improvement over the best feasible value times the probability of
+feasibility; until a feasible point is known, the probability alone. It is maximized over
+candidates drawn in a trust region around the best feasible point (``region: trust``, the
+default: TuRBO's, Eriksson, Pearce, Gardner, Turner and Poloczek, NeurIPS 2019, with one
+region that doubles after 3 improving batches in a row and halves after max(4, d) / batch
+batches without one) or in the whole space (``region: global``). The points of a batch come
+one after another, each told to the surrogates at its predicted value (the kriging believer).
+
+Every proposal is a function of the history before its batch, the seed and the batch's number,
+so that a run's history depends only on the spec, the seed and ``optimizer.batch``: never on
+the number of workers, and a resumed run proposes exactly what the uninterrupted run did. The
+kernel's hyperparameters are fitted at every ``REFIT_EVERY``-th batch, starting from the ones
+the batch before used (recorded in the history: ``surrogate``), and reused in between.
 """
 
 from __future__ import annotations
 
+import math
+import warnings
+from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
-from skopt import Optimizer
-from skopt.space import Real, Space
-from sklearn.utils import check_random_state
+from scipy.stats import norm, qmc
 
-from furuta_cosim.tuning.gp import REFIT_EVERY, Memory, WarmGaussianProcess
-
-# Expected Improvement maximized from the best of this many sampled points by this many L-BFGS
-# starts (scikit-optimize's defaults: 10,000 and 5; tools/bench_tune.py compares)
-ACQUISITION = {"n_points": 2000, "n_restarts_optimizer": 2}
-
-_UNSET = object()
-
-
-class _RealSpace(Space):
-    """A space of real dimensions whose samples and transforms go through arrays: the same
-    draws from the same random state, the same per-dimension transforms."""
-
-    def rvs(self, n_samples=1, random_state=None):
-        rng = check_random_state(random_state)
-        columns = [dim.rvs(n_samples=n_samples, random_state=rng) for dim in self.dimensions]
-        return np.column_stack(columns).tolist()
-
-    def transform(self, X):
-        X = np.asarray(X, dtype=float).reshape(len(X), self.n_dims)
-        return np.column_stack([dim.transform(X[:, j]) for j, dim in enumerate(self.dimensions)])
+# the kernel hyperparameters are fitted at every this many batches (reused between)
+REFIT_EVERY = 3
+# acquisition candidates per point (drawn in the region, then this many again around the best)
+CANDIDATES = 2048
+# TuRBO's trust region, as side lengths of the unit cube
+REGION_START, REGION_MIN, REGION_MAX = 0.8, 0.5**7, 1.6
+SUCCESSES = 3
+REGIONS = ("trust", "global")
+# the best this many candidates by acquisition are checked with the exact cheap constraint
+SCREENED = 64
+LENGTH_BOUNDS = (1e-2, 1e2)
 
 
-class BayesOptimizer(Optimizer):
-    """scikit-optimize's ask/tell optimizer with cheaper batches and sampling (module doc)."""
+@dataclass
+class Proposal:
+    """One batch: its points one at a time (``points(count)``), and what proposed them."""
 
-    def __init__(self, dimensions, *, memory=None, **options):
-        super().__init__(dimensions, **options)
-        self.memory = memory
-        if self.space.constraint is None and all(isinstance(d, Real) for d in self.space.dimensions):
-            self.space = _RealSpace(self.space.dimensions)
+    origin: str                 # "bo", or "bo (no feasible point yet ...)"
+    surrogate: dict             # hyperparameters and region: recorded with each point
+    _next: object = None        # computes the next point
 
-    def replay(self, xs, ys) -> None:
-        """A resumed run: everything evaluated so far, told at once."""
-        self.tell([list(x) for x in xs], list(ys))
+    def points(self, count: int) -> Iterator[list[float]]:
+        for _ in range(count):
+            yield self._next()
 
-    def batch(self, count: int) -> Iterator[list]:
-        """``count`` points by the constant liar (the lie: the best value so far), one at a
-        time; when the batch is out the optimizer is as before it (lies taken back)."""
-        told, models, initial = len(self.Xi), len(self.models), self._n_initial_points
-        saved = {name: self.__dict__.get(name, _UNSET) for name in ("_next_x", "next_xs_")}
-        try:
-            for k in range(count):
-                x = self.ask()
-                yield x
-                if k + 1 < count:
-                    lie = float(np.min(self.yi)) if self.yi else 0.0
-                    if self.memory is not None:
-                        with self.memory.conditioning_only():
-                            self._tell(x, lie)
-                    else:
-                        self._tell(x, lie)
-        finally:
-            del self.Xi[told:], self.yi[told:], self.models[models:]
-            self._n_initial_points = initial
-            for name, value in saved.items():
-                if value is _UNSET:
-                    self.__dict__.pop(name, None)
-                else:
-                    setattr(self, name, value)
-            self.cache_ = {}
+
+def latin_hypercube(n: int, bounds, seed: int) -> list[list[float]]:
+    """``n`` points of a Latin hypercube over ``bounds`` (scipy's, seeded): the initial design."""
+    if n <= 0:
+        return []
+    low, high = (np.array(b, dtype=float) for b in zip(*bounds))
+    unit = qmc.LatinHypercube(d=len(low), seed=np.random.default_rng([seed, 0])).random(n)
+    return (low + unit * (high - low)).tolist()
 
 
 class RandomSearch:
-    """Uniform draws from the same space, with the same interface (scikit-optimize's own
-    "dummy" estimator does not run with current scikit-learn)."""
+    """Uniform draws from the same space: the i-th point depends on the seed and i only."""
 
-    def __init__(self, dimensions, seed: int):
-        self._space, self._rng = Space(dimensions), np.random.RandomState(seed)
+    def __init__(self, bounds, seed: int):
+        self._low, self._high = (np.array(b, dtype=float) for b in zip(*bounds))
+        self._seed = seed
 
-    def batch(self, count: int) -> Iterator[list]:
-        for _ in range(count):
-            yield self._space.rvs(1, random_state=self._rng)[0]
-
-    def tell(self, xs, ys) -> None:
-        pass
-
-    def replay(self, xs, ys) -> None:
-        """A resumed run: the same draws again, so the generator goes on where it was."""
-        for _ in xs:
-            self._space.rvs(1, random_state=self._rng)
+    def point(self, index: int) -> list[float]:
+        rng = np.random.default_rng([self._seed, 1, index])
+        return (self._low + rng.random(len(self._low)) * (self._high - self._low)).tolist()
 
 
-def make(dimensions, method: str, seed: int, *, xi: float, n_initial_points: int, gp_restarts: int):
-    """The optimizer of ``method`` (``bo`` or ``random``) over ``dimensions``; ``gp_restarts``:
-    random starts, besides the last kernel, of each hyperparameter refit."""
-    if method == "random":
-        return RandomSearch(dimensions, seed)
-    from skopt.utils import cook_estimator
+def _kernel(d: int, theta=None):
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+    kernel = ConstantKernel(1.0, (1e-3, 1e3)) * Matern(np.full(d, 0.5), LENGTH_BOUNDS, nu=2.5) \
+        + WhiteKernel(1e-4, (1e-8, 1e-1))
+    if theta is not None:
+        kernel = kernel.clone_with_theta(np.asarray(theta, dtype=float))
+    return kernel
 
 
-    # scikit-optimize's GP with its default settings spends most of a run refitting kernel
-    # hyperparameters from three starts at every tell; a fit every fifth tell (from the last
-    # kernel and gp_restarts random starts; conditioning only in between), its noise level
-    # fitted, and EI maximized from 2,000 sampled points and 2 L-BFGS starts cost a fraction
-    # (tools/bench_tune.py measures against the defaults)
-    memory = Memory()
-    kernel = cook_estimator("GP", space=dimensions, random_state=seed).kernel
-    gp = WarmGaussianProcess(kernel, random_state=seed, noise="gaussian", refit_every=REFIT_EVERY,
-                             n_restarts_optimizer=gp_restarts, memory=memory)
-    return BayesOptimizer(dimensions, memory=memory, base_estimator=gp, acq_func="EI",
-                          acq_func_kwargs={"xi": xi}, n_initial_points=n_initial_points,
-                          acq_optimizer="lbfgs", acq_optimizer_kwargs=dict(ACQUISITION),
-                          random_state=seed)
+class _Surrogate:
+    """One GP on the unit cube: fitted (or only conditioned, with given hyperparameters),
+    then conditioned on made-up observations of a batch."""
+
+    def __init__(self, X, y, theta, refit: bool, restarts: int, seed: int):
+        from sklearn.gaussian_process import GaussianProcessRegressor
+
+        self.X, self.y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
+        self._restarts, self._seed = restarts, seed
+        kernel = _kernel(self.X.shape[1], theta)
+        self.gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=seed,
+                                           n_restarts_optimizer=restarts if refit else 0,
+                                           optimizer="fmin_l_bfgs_b" if refit else None)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # hyperparameters at their bounds: expected here
+            self.gp.fit(self.X, self.y)
+        self.theta = [float(v) for v in self.gp.kernel_.theta]
+
+    def believe(self, x: np.ndarray) -> None:
+        """Condition on the prediction at ``x`` (the kriging believer), hyperparameters kept."""
+        from sklearn.gaussian_process import GaussianProcessRegressor
+
+        mean = float(self.gp.predict(x[None, :])[0])
+        self.X, self.y = np.vstack([self.X, x]), np.append(self.y, mean)
+        self.gp = GaussianProcessRegressor(self.gp.kernel_, normalize_y=True, optimizer=None)
+        self.gp.fit(self.X, self.y)
+
+    def predict(self, X):
+        return self.gp.predict(X, return_std=True)
+
+    def length_scales(self) -> np.ndarray:
+        return np.asarray(self.gp.kernel_.k1.k2.length_scale, dtype=float).reshape(-1)
+
+
+def _region(records, start: int, batch: int, d: int) -> tuple[float, list]:
+    """The trust region's side length after the batches recorded from ``start`` on (TuRBO's
+    rule, replayed over the history), and the best feasible record so far."""
+    length, successes, failures = REGION_START, 0, 0
+    patience = max(1, math.ceil(max(4, d) / batch))
+    best = _best(records[:start])
+    for first in range(start, len(records), batch):
+        chunk = records[first:first + batch]
+        if len(chunk) < batch and first + len(chunk) == len(records):
+            break  # a batch still being evaluated
+        new = _best(chunk)
+        if new is not None and (best is None or new["objective"] < best["objective"]
+                                - 1e-3 * abs(best["objective"])):
+            successes, failures = successes + 1, 0
+        else:
+            successes, failures = 0, failures + 1
+        if new is not None and (best is None or new["objective"] < best["objective"]):
+            best = new
+        if successes >= SUCCESSES:
+            length, successes = min(2 * length, REGION_MAX), 0
+        elif failures >= patience:
+            length, failures = length / 2, 0
+        if length < REGION_MIN:  # converged: start again around the incumbent
+            length, successes, failures = REGION_START, 0, 0
+    return length, best
+
+
+def _best(records):
+    feasible = [r for r in records if r["feasible"]]
+    return min(feasible, key=lambda r: (r["objective"], r["index"])) if feasible else None
+
+
+class ConstrainedBO:
+    """The proposals of ``bo`` (module doc) over a box ``bounds``."""
+
+    def __init__(self, bounds, seed: int, *, xi: float, n_initial_points: int, batch: int,
+                 gp_restarts: int = 0, region: str = "trust", screen=None):
+        self.low, self.high = (np.array(b, dtype=float) for b in zip(*bounds))
+        self.d = len(self.low)
+        self.seed, self.xi, self.batch = seed, xi, batch
+        self.n_initial_points, self.restarts, self.region = n_initial_points, gp_restarts, region
+        self.screen = screen  # x -> bool: a constraint cheap enough to check exactly (stability)
+
+    def _unit(self, x) -> np.ndarray:
+        return (np.asarray(x, dtype=float) - self.low) / (self.high - self.low)
+
+    def _box(self, u: np.ndarray) -> list[float]:
+        return (self.low + np.clip(u, 0.0, 1.0) * (self.high - self.low)).tolist()
+
+    def propose(self, records: list[dict], start: int, number: int) -> Proposal:
+        """Batch ``number`` (0 = the first after the initial design) from the ``records``
+        before it; ``start``: where the batches begin in the history. The surrogates are
+        fitted here; each point is computed when asked for."""
+        rng = np.random.default_rng([self.seed, 2, number])
+        fit_seed = int(rng.integers(2**31 - 1))
+        X = np.array([self._unit(r["x"]) for r in records])
+        previous = records[-1].get("surrogate") if records else None
+        previous = previous if isinstance(previous, dict) else {}
+        refit = number % REFIT_EVERY == 0
+        margins = np.array([_number(r.get("margin"), 1.0) for r in records])
+        feasibility = _Surrogate(X, margins, _theta(previous.get("feasibility"), self.d), refit,
+                                 self.restarts, fit_seed)
+        valued = [k for k, r in enumerate(records) if _finite(r.get("value"))]
+        best = _best(records)
+        objective = None
+        if best is not None and len(valued) >= 2:
+            objective = _Surrogate(X[valued], [records[k]["value"] for k in valued],
+                                   _theta(previous.get("objective"), self.d), refit,
+                                   self.restarts, fit_seed)
+        length, _ = _region(records, start, self.batch, self.d)
+        if best is not None:
+            center = self._unit(best["x"])
+        else:  # nothing feasible yet: around the point closest to feasibility
+            center = X[int(np.argmin(margins))]
+
+        def next_point() -> list[float]:
+            u = self._maximize(objective, feasibility, best, center, length, rng)
+            feasibility.believe(u)
+            if objective is not None:
+                objective.believe(u)
+            return self._box(u)
+
+        surrogate = {"feasibility": feasibility.theta,
+                     "objective": objective.theta if objective else None,
+                     "region": length if self.region == "trust" else None}
+        origin = "bo" if best is not None else "bo (no feasible point yet: feasibility only)"
+        return Proposal(origin, surrogate, next_point)
+
+    def _candidates(self, center, length, weights, rng, n) -> np.ndarray:
+        if self.region == "global":
+            return rng.random((n, self.d))
+        half = 0.5 * length * weights
+        low, high = np.clip(center - half, 0, 1), np.clip(center + half, 0, 1)
+        box = low + rng.random((n, self.d)) * (high - low)
+        # TuRBO: perturb only some coordinates of the center, so that high dimensions still
+        # move in few directions at a time
+        mask = rng.random((n, self.d)) <= min(1.0, 20.0 / self.d)
+        empty = ~mask.any(axis=1)
+        mask[empty, rng.integers(self.d, size=int(empty.sum()))] = True
+        return np.where(mask, box, center)
+
+    def _maximize(self, objective, feasibility, best, center, length, rng) -> np.ndarray:
+        scales = (objective or feasibility).length_scales()
+        weights = scales / np.exp(np.mean(np.log(scales)))
+        C = self._candidates(center, length, weights, rng, CANDIDATES)
+        top, score = self._pick(C, self._acquisition(C, objective, feasibility, best))
+        # a second, finer look around the best candidate
+        near = np.clip(top + rng.normal(0.0, 0.02 * length, (CANDIDATES // 4, self.d)) * weights, 0, 1)
+        closer, closer_score = self._pick(near, self._acquisition(near, objective, feasibility, best))
+        return closer if closer_score > score else top
+
+    def _pick(self, C, scores) -> tuple[np.ndarray, float]:
+        """The best candidate that passes the exact cheap check among the best SCREENED (its
+        score), or the best one (score -inf) when none does."""
+        order = np.argsort(-scores, kind="stable")
+        for k in order[:SCREENED]:
+            if self.screen is None or self.screen(self._box(C[k])):
+                return C[k], float(scores[k])
+        return C[order[0]], -math.inf
+
+    def _acquisition(self, C, objective, feasibility, best) -> np.ndarray:
+        mean_g, std_g = feasibility.predict(C)
+        feasible = norm.cdf(-mean_g / np.maximum(std_g, 1e-12))
+        if objective is None:
+            return feasible
+        mean, std = objective.predict(C)
+        spread = float(np.std(objective.y)) or 1.0
+        improvement = best["objective"] - mean - self.xi * spread
+        std = np.maximum(std, 1e-12)
+        z = improvement / std
+        ei = improvement * norm.cdf(z) + std * norm.pdf(z)
+        return np.maximum(ei, 0.0) * feasible
+
+
+def _number(value, default: float) -> float:
+    return float(value) if _finite(value) else default
+
+
+def _finite(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _theta(value, d: int):
+    """Hyperparameters recorded in the history, when they fit this kernel (else None)."""
+    if isinstance(value, list) and len(value) == d + 2 and all(_finite(v) for v in value):
+        return value
+    return None
+
+
+def batches(n_initial: int, batch: int, total: int) -> Iterator[tuple[int, int, int]]:
+    """(number, first index, count) of each batch after the initial design of a run of
+    ``total`` evaluations."""
+    number, first = 0, n_initial
+    while first < total:
+        count = min(batch, total - first)
+        yield number, first, count
+        number, first = number + 1, first + count

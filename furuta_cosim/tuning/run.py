@@ -1,4 +1,4 @@
-"""A tuning run: scikit-optimize's ask/tell loop over a spec, written to a run directory.
+"""A tuning run: the ask/evaluate/record loop over a spec, written to a run directory.
 
     run-dir/
       spec.yaml        a copy of the spec
@@ -8,9 +8,13 @@
       convergence.png  (and .svg) best objective against evaluations
       summary.json     best, baselines scored alike, counts; summary.md the same in words
 
-Candidates come in synchronous batches (``bo``: GP + Expected Improvement, tuning/optimizers.py;
-``random``: the same space drawn at random; ``de``: scipy's differential evolution), each
-point of a batch sent to an executor (tuning/executors.py) as soon as it is known.
+Candidates come in synchronous batches of ``optimizer.batch`` (``bo``: constrained Bayesian
+optimization, tuning/optimizers.py; ``random``: the same space drawn at random; ``de``: scipy's
+differential evolution), each point of a batch sent to an executor (tuning/executors.py) as
+soon as it is known. Workers change only the speed: a history depends on the spec, the seed
+and the batch size, and a resumed run goes on exactly as the uninterrupted one would have.
+``bo`` starts from an initial design holding the spec's baselines and ``optimizer.initial``
+controllers that its search space can represent, filled up by a Latin hypercube.
 """
 
 from __future__ import annotations
@@ -19,8 +23,6 @@ import json
 import math
 import os
 import time
-import warnings
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
@@ -34,11 +36,13 @@ from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import METHODS, TuningSpec
 
 
-def _record(index: int, x, names, outcome: Outcome) -> dict:
+def _record(index: int, x, names, outcome: Outcome, origin: str = "", surrogate=None) -> dict:
     return json_safe({"index": index, "x": [float(v) for v in x],
                        "parameters": dict(zip(names, map(float, x))),
                        "objective": outcome.objective, "feasible": outcome.feasible,
+                       "value": outcome.value, "margin": outcome.margin,
                        "constraints": outcome.constraints, "metrics": outcome.metrics,
+                       "origin": origin, "surrogate": surrogate,
                        "wall_time": outcome.wall_time, "worker": outcome.worker, "error": outcome.error})
 
 
@@ -193,7 +197,8 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
     """Run the spec's optimization into ``run_dir`` and return the summary document.
 
     ``workers`` > 1 evaluates in local processes, ``dask`` (a scheduler address or ``local``)
-    on a Dask cluster; candidates are asked in synchronous batches of ``max(batch, workers)``.
+    on a Dask cluster; candidates are asked in synchronous batches of ``optimizer.batch``
+    (the initial design at once), so that workers change the speed and never the history.
     ``resume`` continues a run directory after a crash: the history is replayed into the
     optimizer and the run goes on until it holds exactly ``n_calls`` evaluations.
     ``progress(done, total, best, feasible)`` is called after every batch; ``log`` takes a
@@ -265,7 +270,7 @@ def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, w
             progress, log) -> dict:
     from threadpoolctl import threadpool_limits
 
-    batch = max(spec.optimizer.batch, workers if (workers > 1 or dask) else 1)
+    batch = spec.optimizer.batch
     clock = _Clock(folder / "run.json")
     # one BLAS thread for the optimizer, serial too: with workers they use the other cores;
     # alone, at a GP's sizes (150 points), a second thread made each iteration twice as
@@ -275,12 +280,10 @@ def _search(spec, folder, evaluator, executor, history, n_calls, seed, method, w
         if method == "de":
             _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch,
                                     clock, progress)
+        elif method == "random":
+            _random(evaluator, executor, history, n_calls, seed, batch, clock, progress)
         else:
-            _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock,
-                      progress)
-    if clock.repeated and log:
-        log(f"the acquisition proposed an already evaluated point {clock.repeated} time(s); "
-            "scikit-optimize took a random point instead each time")
+            _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, progress, log)
     return _finish(spec, folder, evaluator, history.records, n_calls, method, seed, clock)
 
 
@@ -296,7 +299,6 @@ class _Clock(dict):
         saved = saved if isinstance(saved, dict) else {}
         super().__init__({key: _seconds(saved.get(f"{key}_seconds")) for key in ("optimizer", "evaluation")})
         self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed")}
-        self.repeated = 0  # already-evaluated points the acquisition proposed (this process)
 
     def save(self) -> None:
         write_text(self.path, json.dumps({**self.identity, "optimizer_seconds": self["optimizer"],
@@ -315,65 +317,124 @@ def _report(progress, history: _History, n_calls: int, clock: _Clock) -> None:
         progress(len(history.records), n_calls, min(feasible) if feasible else None, len(feasible))
 
 
-def _evaluate(executor, evaluator, history: _History, xs, clock) -> list[float]:
-    return _collect(executor, evaluator, history, xs, [executor.submit(x) for x in xs], clock)
+def _evaluate(executor, evaluator, history: _History, xs, clock, origins=None) -> list[float]:
+    return _collect(executor, evaluator, history, xs, [executor.submit(x) for x in xs], clock,
+                    origins)
 
 
-def _collect(executor, evaluator, history: _History, xs, pending, clock) -> list[float]:
+def _collect(executor, evaluator, history: _History, xs, pending, clock, origins=None,
+             surrogate=None) -> list[float]:
     """Wait for a batch's outcomes (the evaluation clock: time spent waiting), record them."""
     started = time.perf_counter()
-    outcomes = executor.gather(pending)
+    outcomes = executor.gather(pending) if pending else []
     clock["evaluation"] += time.perf_counter() - started
     names = evaluator.space.names
-    for x, outcome in zip(xs, outcomes):
-        history.append(_record(len(history.records), x, names, outcome))
+    for k, (x, outcome) in enumerate(zip(xs, outcomes)):
+        history.append(_record(len(history.records), x, names, outcome,
+                               origins[k] if origins else "", surrogate))
     return [outcome.objective for outcome in outcomes]
 
 
-def _ask_tell(spec, evaluator, executor, history, n_calls, seed, method, batch, clock, progress):
-    from furuta_cosim.tuning.optimizers import make
+def _random(evaluator, executor, history, n_calls, seed, batch, clock, progress):
+    from furuta_cosim.tuning.optimizers import RandomSearch
 
-    settings = spec.optimizer
-    optimizer = make(evaluator.space.dimensions(), method, seed, xi=settings.xi,
-                     n_initial_points=settings.n_initial_points, gp_restarts=settings.gp_restarts)
-    if history.records:
-        with _repeats(clock):
-            optimizer.replay([r["x"] for r in history.records], [r["objective"] for r in history.records])
+    sampler = RandomSearch(evaluator.space.bounds, seed)
     while len(history.records) < n_calls:
-        xs, pending, points = [], [], None
-        while True:  # each point goes out while the next one is computed
-            started = time.perf_counter()
-            with _repeats(clock):
-                points = points or optimizer.batch(min(batch, n_calls - len(history.records)))
-                x = next(points, None)
-            clock["optimizer"] += time.perf_counter() - started
-            if x is None:
-                break
-            xs.append(x)
-            pending.append(executor.submit(x))
-        ys = _collect(executor, evaluator, history, xs, pending, clock)
-        started = time.perf_counter()
-        with _repeats(clock):
-            optimizer.tell(xs, ys)
-        clock["optimizer"] += time.perf_counter() - started
+        first = len(history.records)
+        xs = [sampler.point(k) for k in range(first, min(first + batch, n_calls))]
+        _evaluate(executor, evaluator, history, xs, clock, ["random"] * len(xs))
         _report(progress, history, n_calls, clock)
 
 
-_REPEAT = "The objective has been evaluated at point"
+def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[float], str]]:
+    """The initial design of ``bo``: the spec's baselines and ``optimizer.initial`` controllers
+    the space can represent (each said in one line, or why not), then a Latin hypercube up to
+    ``optimizer.n_initial_points``."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.tuning.optimizers import latin_hypercube
+
+    design, seen = [], set()
+    for kind, names in (("baseline", spec.baselines), ("initial", spec.optimizer.initial)):
+        for name in names:
+            cfile = load_controller(name)
+            if cfile.name in seen:
+                continue
+            seen.add(cfile.name)
+            x, how = evaluator.space.point_of(cfile)
+            if log:
+                log(f"{kind} {cfile.name}: " + (f"in the initial design, {how}" if x is not None
+                                                 else f"not in the initial design: {how}"))
+            if x is not None:
+                design.append((x, f"{kind} {cfile.name}"))
+    fill = latin_hypercube(spec.optimizer.n_initial_points - len(design), evaluator.space.bounds, seed)
+    return design + [(x, "initial design") for x in fill]
 
 
-@contextmanager
-def _repeats(clock: "_Clock"):
-    """scikit-optimize warns, with the whole point, each time the acquisition proposes a point
-    already evaluated (it takes a random one instead): counted here, said once at the end."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        yield
-    for warning in caught:
-        if str(warning.message).startswith(_REPEAT):
-            clock.repeated += 1
-        else:
-            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+def _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, progress, log):
+    from furuta_cosim.tuning.optimizers import ConstrainedBO, batches
+
+    settings, records = spec.optimizer, history.records
+    if len(records) >= n_calls:
+        return  # a finished run resumed: nothing to propose, no time to count
+    started = time.perf_counter()
+    design = initial_design(spec, evaluator, seed, log)[:n_calls]
+    _replayed(records, [x for x, _ in design], 0)
+    todo = design[len(records):]
+    clock["optimizer"] += time.perf_counter() - started
+    if todo:  # every point is known: all at once, whatever the workers
+        _evaluate(executor, evaluator, history, [x for x, _ in todo], clock, [o for _, o in todo])
+        _report(progress, history, n_calls, clock)
+    optimizer = ConstrainedBO(evaluator.space.bounds, seed, xi=settings.xi,
+                              n_initial_points=len(design), batch=batch,
+                              gp_restarts=settings.gp_restarts, region=settings.region,
+                              screen=_stable(evaluator))
+    for number, first, count in batches(len(design), batch, n_calls):
+        if first + count <= len(records):
+            continue  # evaluated before a resume
+        started = time.perf_counter()
+        proposal = optimizer.propose(records[:first], len(design), number)
+        points = proposal.points(count)
+        xs, pending = [], []
+        done = len(records) - first  # a resume in the middle of this batch: proposed again
+        while True:  # each point goes out while the next one is computed
+            started = started or time.perf_counter()
+            x = next(points, None)
+            clock["optimizer"] += time.perf_counter() - started
+            started = None
+            if x is None:
+                break
+            if len(xs) < done:
+                _replayed(records[first:], [x], len(xs))
+                xs.append(None)
+                continue
+            xs.append(x)
+            pending.append(executor.submit(x))
+        fresh = [x for x in xs if x is not None]
+        _collect(executor, evaluator, history, fresh, pending, clock,
+                 [proposal.origin] * len(fresh), proposal.surrogate)
+        _report(progress, history, n_calls, clock)
+
+
+def _stable(evaluator):
+    """The exact check of the loop's stability at a point (microseconds to a millisecond,
+    against a co-simulation's tenths of a second): candidates that fail it are not proposed."""
+    def screen(x) -> bool:
+        try:
+            return evaluator.loop_checks(evaluator.space.controller(x))[1] == 0
+        except Exception:  # noqa: BLE001 - no controller there: not a candidate
+            return False
+    return screen
+
+
+def _replayed(records, xs, offset: int) -> None:
+    """A resumed run proposes again what the history holds: the same points, or the history
+    is not this run's (a changed kernel library can do that; say so, change nothing)."""
+    for k, x in enumerate(xs[:max(0, len(records) - offset)]):
+        recorded = records[offset + k]
+        if not np.allclose(recorded["x"], x, rtol=0, atol=1e-9 * (1 + np.max(np.abs(x)))):
+            raise ConfigError([f"--resume: evaluation {recorded['index']} of the history is not "
+                               "the point this run proposes there (were the spec's controllers "
+                               "or a library changed?); nothing was changed"])
 
 
 def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, batch, clock,
@@ -393,17 +454,19 @@ def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, b
         remaining = n_calls - len(history.records)
         if xs and remaining <= 0:
             raise _Spent()
-        ys += _evaluate(executor, evaluator, history, xs[:remaining], clock)
+        ys += _evaluate(executor, evaluator, history, xs[:remaining], clock,
+                        ["differential evolution"] * len(xs[:remaining]))
         _report(progress, history, n_calls, clock)
         if len(xs) > remaining:
             raise _Spent()
         return ys
 
     dimensions = len(evaluator.space.bounds)
+    budget = spec.optimizer.n_calls  # the spec's, not --n-calls: a longer run extends a shorter one
     started, waited = time.perf_counter(), clock["evaluation"]
     try:
         differential_evolution(lambda x: 0.0, evaluator.space.bounds, seed=seed, maxiter=10**9,
-                               popsize=max(5, min(15, n_calls // (4 * dimensions) or 1)),
+                               popsize=max(5, min(15, budget // (4 * dimensions) or 1)),
                                polish=False, updating="deferred", workers=evaluate_all, tol=0,
                                init="latinhypercube")
     except _Spent:
@@ -430,19 +493,39 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
                 "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
                 "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines}
     if best is not None:
+        # everything the scoring used: the controller at the recorded point and the prefilter
+        # each run computed for it (one tracked output: the file holds one F)
         controller = evaluator.space.controller(best["x"], name=f"{spec.name}-best")
+        tracked, F = _prefilter(evaluator, controller)
         provenance = {"method": f"furuta-cosim tune ({method})", "spec": spec.name, "seed": seed,
-                      "evaluation": best["index"], "objective": best["objective"]}
-        save_controller(ControllerFile(controller, spec.period, spec.model, None, None,
+                      "evaluation": best["index"], "objective": best["objective"],
+                      "origin": best.get("origin") or ""}
+        save_controller(ControllerFile(controller, spec.period, spec.model, tracked, F,
                                        f"best of tuning {spec.name} ({method}, seed {seed})",
                                        provenance=provenance), folder / "best.yaml")
         document["best"] = {"index": best["index"], "objective": best["objective"],
-                            "parameters": best["parameters"], "metrics": best["metrics"],
-                            "file": "best.yaml"}
-    plot_convergence(records, folder / "convergence")
+                            "origin": best.get("origin") or "", "parameters": best["parameters"],
+                            "metrics": best["metrics"], "file": "best.yaml",
+                            "prefilter": {"output": tracked, "F": F}}
+    levels = {name: b["objective"] for name, b in baselines.items() if b["feasible"]}
+    plot_convergence(records, folder / "convergence", levels)
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
     write_text(folder / "summary.md", summary_text(spec, document))
     return document
+
+
+def _prefilter(evaluator, controller) -> tuple[str, float]:
+    """The tracked output and prefilter F the scoring used (the first run's, when runs track
+    different outputs; the model's default output for the spectral objective)."""
+    from furuta_cosim.controllers import default_output
+    from furuta_cosim.design.prefilter import prefilter
+
+    prefilters = evaluator.prefilters(controller) if evaluator.spec.objective.type == "scenarios" else {}
+    if prefilters:
+        tracked = next(iter(prefilters))
+        return tracked, float(prefilters[tracked])
+    tracked = default_output(evaluator.model)
+    return tracked, float(prefilter(evaluator.model, controller, tracked))
 
 
 def summary_text(spec: TuningSpec, document: dict) -> str:
@@ -460,7 +543,10 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
              f"{document['evaluation_seconds']:.1f} s", ""]
     best = document["best"]
     if best:
-        lines.append(f"Best: objective {best['objective']:.6g} at evaluation {best['index']} (best.yaml).")
+        origin, F = best.get("origin") or "the search", best.get("prefilter") or {}
+        lines.append(f"Best: objective {best['objective']:.6g} at evaluation {best['index']}, "
+                     f"from {origin} (best.yaml" + (f", prefilter F = {F['F']:.6g} for {F['output']}"
+                                                    if F else "") + ").")
     else:
         lines.append("No feasible controller was found.")
     for name, baseline in document["baselines"].items():

@@ -15,6 +15,7 @@ Each of Ac, Bc, Cc, Dc is made by one block:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,3 +108,91 @@ class Space:
             start += count
         return GeneralizedController(matrices["Ac"], matrices["Bc"], matrices["Cc"], matrices["Dc"],
                                      self.period if self.discrete else 0.0, name)
+
+    def point_of(self, cfile) -> tuple[list[float] | None, str]:
+        """The point of this space that makes the controller of ``cfile`` (a
+        :class:`~furuta_cosim.controllers.ControllerFile`), and how closely; or None and why
+        not. A static controller (no controller state) is the point with Bc = 0 (the state
+        then stays 0; Ac and Cc at the middle of their ranges); an ``lqr`` block takes the
+        file's design weights (provenance Q diagonal, the block's R), rebuilt on this
+        space's model and time domain."""
+        c = cfile.controller
+        n_xc = self.blocks[0].shape[0]
+        if c.n_xc not in (0, n_xc):
+            return None, f"it has {c.n_xc} controller state(s); the search has {n_xc}"
+        x, rebuilt = [], {}
+        for block in self.blocks:
+            given = {"Ac": c.Ac, "Bc": c.Bc, "Cc": c.Cc, "Dc": c.Dc}[block.key]
+            static = c.n_xc == 0 and block.key != "Dc"
+            values, why = _values_of(block, given, static, cfile)
+            if values is None:
+                return None, f"{block.key}: {why}"
+            x += values
+        built = self.controller(x, name=c.name)
+        gap = float(np.linalg.norm(built.Dc - c.Dc) / max(np.linalg.norm(c.Dc), 1e-300))
+        if c.n_xc and any(not np.allclose(getattr(built, k), getattr(c, k), rtol=1e-9, atol=0)
+                          for k in ("Ac", "Bc", "Cc")):
+            return None, "its Ac, Bc, Cc are not all inside the search's ranges"
+        if gap > MAX_GAP:
+            return None, (f"the nearest point's gain differs from the file's by {gap:.1%} "
+                          f"(more than {MAX_GAP:.0%})")
+        return x, ("exactly" if gap <= 1e-9 else
+                   f"as its design (the same Q and R on {self.model.name}, "
+                   f"{'discrete' if self.discrete else 'continuous'} here): gain within {gap:.2%}")
+
+
+# a baseline enters a search when its point reproduces its gain this closely (relative norm)
+MAX_GAP = 0.05
+
+
+def _values_of(block: Block, given: np.ndarray, static: bool, cfile) -> tuple[list | None, str]:
+    """The search values of one block that give the matrix ``given`` (see Space.point_of)."""
+    free = block.free
+    if block.kind == "fixed":
+        if static and block.key != "Bc":
+            return [], ""
+        target = np.zeros(block.shape) if static else given
+        return ([], "") if np.array_equal(block.base(), target) else \
+            (None, "fixed in the search to another matrix")
+    if block.kind == "lqr":
+        provenance = cfile.provenance or {}
+        Q, R = provenance.get("Q"), provenance.get("R")
+        try:
+            Q, R = np.array(Q, dtype=float), np.array(R, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            return None, "the file records no LQR weights Q and R (provenance)"
+        if Q.ndim != 2 or Q.shape != (block.shape[1],) * 2 or np.any(Q != np.diag(np.diag(Q))) \
+                or np.any(np.diag(Q) <= 0):
+            return None, "its recorded Q is not a positive diagonal of the model's size"
+        if R.size != 1 or not math.isclose(float(R[0]), block.R, rel_tol=1e-12):
+            return None, f"its recorded R is {R.tolist()}, the search's R is {block.R:g}"
+        q = np.log10(np.diag(Q))
+        if np.any(q < block.low - 1e-12) or np.any(q > block.high + 1e-12):
+            return None, (f"log10 diag(Q) = {np.round(q, 3).tolist()} is outside "
+                          f"[{block.low:g}, {block.high:g}]")
+        return q.tolist(), ""
+    middle = 0.5 * (block.low + block.high)
+    values = []
+    for i, j in free:
+        if static:
+            if block.key == "Bc":
+                if block.kind != "box" or not block.low <= 0.0 <= block.high:
+                    return None, "a static controller needs Bc = 0, outside this block's range"
+                values.append(0.0)
+            else:
+                values.append(middle)
+            continue
+        value = float(given[i, j])
+        if block.kind == "log":
+            if value * block.sign <= 0:
+                return None, f"entry [{i}][{j}] = {value:g} has the other sign"
+            value = math.log10(value * block.sign)
+        if not block.low - 1e-12 <= value <= block.high + 1e-12:
+            return None, f"entry [{i}][{j}] is outside [{block.low:g}, {block.high:g}]"
+        values.append(min(max(value, block.low), block.high))
+    if static and block.key == "Bc":
+        fixed_ok = all(block.base()[i, j] == 0 for i in range(block.shape[0])
+                       for j in range(block.shape[1]) if (i, j) not in free)
+        if not fixed_ok:
+            return None, "a static controller needs Bc = 0; its fixed entries are not"
+    return values, ""

@@ -73,7 +73,9 @@ class OptimizerSettings:
     xi: float = 0.01
     seed: int = 0
     batch: int = 1
-    gp_restarts: int = 2
+    gp_restarts: int = 0
+    region: str = "trust"               # bo's candidates: a trust region, or the whole space
+    initial: tuple[str, ...] = ()       # controller files entering the initial design
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,11 @@ def load_spec(name: str | Path) -> TuningSpec:
     if "baselines" in top:
         baselines = tuple(_controller_file(check, name, f"baselines[{k}]", model)
                           for k, name in enumerate(check.names(top["baselines"], "baselines") or ()))
+    initial = (top.get("optimizer") or {}).get("initial", []) if isinstance(top.get("optimizer"), dict) else []
+    if optimizer and initial:
+        optimizer = replace(optimizer, initial=tuple(
+            _controller_file(check, name, f"optimizer.initial[{k}]", model)
+            for k, name in enumerate(check.names(initial, "optimizer.initial") or ())))
     if constraints.baseline:
         constraints = replace(constraints, baseline=_controller_file(
             check, constraints.baseline, "constraints.no_worse_than.controller", model))
@@ -364,11 +371,15 @@ _OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1, maximum=MAX_CALLS
 
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
+    from furuta_cosim.tuning.optimizers import REGIONS
+
     defaults = OptimizerSettings()
-    section = check.mapping(value, "optimizer", optional=("method", *_OPTIMIZER_NUMBERS))
+    section = check.mapping(value, "optimizer", optional=("method", "region", "initial",
+                                                          *_OPTIMIZER_NUMBERS))
     if section is None:
         return None
-    values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", METHODS)}
+    values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", METHODS),
+              "region": check.string(section.get("region", defaults.region), "optimizer.region", REGIONS)}
     for key, rules in _OPTIMIZER_NUMBERS.items():
         values[key] = check.number(section.get(key, getattr(defaults, key)), f"optimizer.{key}", **rules)
     if None in values.values():
