@@ -148,3 +148,15 @@ def test_the_optimizer_runs_on_one_blas_thread_serial_too(tmp_path, monkeypatch)
     with threadpool_limits(2):                   # whatever the caller allows
         run.tune(load_spec("paper-spectral"), tmp_path / "run", n_calls=12)
     assert seen and set(seen) == {1}
+
+
+def test_the_convergence_figure_shows_each_baselines_level(tmp_path, monkeypatch):
+    from furuta_cosim.report import figures
+
+    drawn = {}
+    monkeypatch.setattr(figures, "_save", lambda figure, path, dpi: drawn.setdefault("figure", figure) and [])
+    records = [{"index": k, "objective": v, "feasible": v < 100} for k, v in enumerate([3.0, 1000.5, 2.0])]
+    figures.plot_convergence(records, tmp_path / "c", {"lqr-paper": 2.5})
+    axis = drawn["figure"].axes[0]
+    levels = [line for line in axis.get_lines() if line.get_label() == "lqr-paper (scored alike)"]
+    assert len(levels) == 1 and list(levels[0].get_ydata()) == [2.5, 2.5]
