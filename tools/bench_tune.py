@@ -178,7 +178,12 @@ def measure(args, work: Path) -> dict:
         known = None
         if args.best_known:
             started = time.perf_counter()
-            document = plain(spec, work / Path(name).stem / "best-known", 0, args.best_known,
+            # the spec's budget sets differential evolution's population (at most 15 per
+            # parameter): the long run gets the population of a long run
+            from dataclasses import replace
+
+            long = replace(spec, optimizer=replace(spec.optimizer, n_calls=args.best_known))
+            document = plain(long, work / Path(name).stem / "best-known", 0, args.best_known,
                              args.workers, "de")
             known = best_of(document)
             print(f"  {name} de {args.best_known}: best {known}, {time.perf_counter() - started:.1f} s",
