@@ -1,7 +1,7 @@
 """Tuning measured as the README reports it: each optimizer over 10 seeds at the same budget,
 beside the LQR scored alike and the best value known, in one run.
 
-    python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--calls 150]
+    python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--first-seed 0] [--calls 150]
                                [--workers 2] [--methods ours,global,before,random,de,skopt]
                                [--best-known 3000] [--before REV] [--kernel NAME] [-o FOLDER]
 
@@ -156,7 +156,7 @@ def measure(args, work: Path) -> dict:
         spec = load_spec(name)
         rows, lqr = {}, None
         for method in args.methods:
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 folder = work / Path(name).stem / method / f"seed-{seed}"
                 started = time.perf_counter()
                 if method in ("ours", "global"):
@@ -211,7 +211,8 @@ def table(results: dict, args) -> list[str]:
         if not isinstance(data, dict) or "rows" not in data:
             continue
         lqr, known = data["lqr"], data["best_known"]
-        lines += ["", f"{name}: best objective over seeds 0-{args.seeds - 1}, {args.calls} calls "
+        seeds = f"{args.first_seed}-{args.first_seed + args.seeds - 1}"
+        lines += ["", f"{name}: best objective over seeds {seeds}, {args.calls} calls "
                       f"(lower is better); LQR scored alike {_f(lqr)}; best known {_f(known)} "
                       f"(de with {data['best_known_evaluations']} evaluations, or any run's best)",
                   "", "| method | median | worst | median vs best known | seeds <= LQR | per seed |",
@@ -239,6 +240,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--specs", nargs="+", default=["effort", "robust-effort"])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds FIRST .. FIRST + SEEDS - 1 (to extend an earlier run)")
     parser.add_argument("--calls", type=int, default=150)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--methods", default=",".join(METHODS),
