@@ -295,6 +295,18 @@ def cmd_export_controller(args) -> int:
     return 0
 
 
+def cmd_fronts(args) -> int:
+    from pathlib import Path
+
+    from furuta_cosim.tuning.front import compare
+
+    out = Path(args.output or Path("runs") / "fronts")
+    compare(args.runs, out)
+    print((out / "fronts.md").read_text(), end="")
+    print(f"figure: {out / 'fronts.png'} (and .svg)")
+    return 0
+
+
 def cmd_report(args) -> int:
     from furuta_cosim.report.pages import write_report
 
@@ -410,6 +422,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="default: the spec's")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=cmd_tune)
+
+    p = commands.add_parser("fronts", help="the Pareto fronts of tradeoff tunings on one figure, compared")
+    p.add_argument("runs", nargs="+", help="run directories of tradeoff tunings (the first is compared with the others)")
+    p.add_argument("-o", "--output", help="folder (default: runs/fronts)")
+    p.set_defaults(handler=cmd_fronts)
 
     p = commands.add_parser("regress", help="run scenarios and compare with their baselines")
     p.add_argument("paths", nargs="*", help="scenario files, names or folders (default: every shipped scenario)")

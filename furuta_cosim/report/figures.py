@@ -172,3 +172,52 @@ def _mark_exit(axis, trace: Trace, when: float, value: float, limits: tuple[floa
                   f"{trace.t[-1]:.3g})", (when, edge),
                   textcoords="offset points", xytext=(8, 6 if edge == limits[0] else -12),
                   fontsize="small", color=color)
+
+
+def plot_tradeoff(feasible: Sequence[Sequence[float]], front: Sequence[Sequence[float]],
+                  knee: int | None, names: Sequence[str],
+                  baselines: Mapping[str, Mapping | None], path: str | Path, title: str = "",
+                  fronts: Mapping[str, Sequence[Sequence[float]]] | None = None) -> list[Path]:
+    """A trade-off between the first two criteria as ``path``.png and .svg: every feasible
+    evaluation, the Pareto front (a step line), its knee, each baseline's point. ``fronts``
+    draws further labelled fronts on the same axes (families compared)."""
+    figure, axis = plt.subplots(figsize=(6.4, 4.6))
+    if len(feasible):
+        F = np.asarray(feasible, dtype=float)
+        axis.plot(F[:, 0], F[:, 1], "o", markersize=3, alpha=0.35, color="grey",
+                  label="feasible evaluation")
+    for k, (label, points) in enumerate(({"front": front} if fronts is None else fronts).items()):
+        if len(points):
+            P = np.asarray(points, dtype=float)
+            axis.step(P[:, 0], P[:, 1], where="post", color=f"C{k}", linewidth=1.4)
+            axis.plot(P[:, 0], P[:, 1], "o", color=f"C{k}", markersize=4, label=f"{label} ({len(P)})")
+    if knee is not None and len(front) and fronts is None:
+        axis.plot(front[knee][0], front[knee][1], "*", markersize=14, color="C3", label="knee")
+    # the axes span the evaluations (a baseline far outside them is named, not drawn: one
+    # diverging controller must not squash the front into a corner)
+    shown = [np.asarray(p, dtype=float).reshape(-1, 2) for p in
+             [feasible, front, *((fronts or {}).values())] if len(p)]
+    box = np.vstack(shown) if shown else np.ones((1, 2))
+    low, high = box.min(axis=0), box.max(axis=0)
+    for k, (name, criteria) in enumerate(baselines.items()):
+        if not criteria or any(criteria.get(n) is None for n in names[:2]):
+            continue
+        point = np.array([criteria[names[0]], criteria[names[1]]], dtype=float)
+        inside = np.all(point <= high + 0.5 * (high - low) + 1e-12)
+        if inside:
+            low, high = np.minimum(low, point), np.maximum(high, point)
+        axis.plot(*(point if inside else [np.nan, np.nan]), "D", markersize=7,
+                  color=f"C{(k + 4) % 10}",
+                  label=name if inside else f"{name} (off the axes: {point[0]:.4g}, {point[1]:.4g})")
+    pad = 0.05 * np.where(high > low, high - low, np.abs(high) + 1.0)
+    axis.set_xlim(low[0] - pad[0], high[0] + pad[0])
+    axis.set_ylim(low[1] - pad[1], high[1] + pad[1])
+    axis.set_xlabel(names[0])
+    axis.set_ylabel(names[1])
+    if title:
+        axis.set_title(title + (f" (first two of {len(names)} criteria)" if len(names) > 2 else ""),
+                       fontsize="medium")
+    axis.grid(True, alpha=0.3)
+    axis.legend(fontsize="small")
+    figure.tight_layout()
+    return _save(figure, path, dpi=110)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +51,7 @@ class Outcome:
     worker: int | None = None       # the process that evaluated it (None: unknown, it died)
     value: float | None = None      # the objective, feasible or not (None: not computable)
     margin: float = MARGIN_CAP      # largest normalized constraint slack, in [-1, 1] (<= 0: met)
+    criteria: dict | None = None    # tradeoff: each criterion's value (None where not computable)
 
 
 def _margin(slacks) -> float:
@@ -91,7 +93,7 @@ class Evaluator:
         self.model = load_model(spec.model)
         self.space = Space(spec.blocks, self.model, spec.period, spec.discrete)
         self._runs = None  # [(label, prepared, session)], prepared on first use
-        self._baseline = None  # the no_worse_than baseline's metrics by run
+        self._references = {}  # controller file -> its metrics by run (computed once)
 
     # -- the cheap checks ------------------------------------------------------------------
     def loop_checks(self, controller: GeneralizedController) -> tuple[dict, float]:
@@ -192,7 +194,7 @@ class Evaluator:
                 violation += 1.0
                 constraints[f"{label}.diverged"] = True
                 slacks.append(math.inf)
-                scores.append(math.inf)
+                scores.append([math.inf] * len(spec.objective.criteria))
                 continue
             for signal, bound in spec.constraints.max_abs:
                 value = result.metrics.get(_peak(signal), math.inf)
@@ -211,31 +213,82 @@ class Evaluator:
                 constraints[f"{label}.requirements"] = failed
                 violation += 0.1 * len(failed)
                 slacks.append(0.1 * len(failed))
-            score = sum(term.weight * result.metrics.get(term.metric, math.inf)
-                        for term in spec.objective.terms)
-            scores.append(score)
-        finite = all(math.isfinite(s) for s in scores)
-        total = (max(scores) if spec.objective.aggregate == "worst" else float(np.mean(scores))) \
-            if finite else None
-        if violation > 0 or not finite:
+            scores.append([self._criterion(criterion, label, result.metrics)
+                           for criterion in spec.objective.criteria])
+        return self._outcome(scores, violation, constraints, metrics, slacks)
+
+    def _criterion(self, criterion, label: str, metrics: dict) -> float:
+        """One criterion's weighted terms on one run (a relative term divided by its
+        controller's value on the same run)."""
+        total = 0.0
+        for term in criterion.terms:
+            value = metrics.get(term.metric, math.inf)
+            if term.relative_to:
+                value = value / self.reference_metrics(term.relative_to)[label][term.metric]
+            total += term.weight * value
+        return total
+
+    def _outcome(self, scores, violation, constraints, metrics, slacks) -> Outcome:
+        """The outcome from each run's criteria: aggregated over the runs; the objective of a
+        tradeoff is the mean of its criteria (what one number can say: random search's and the
+        progress line's; the front is what the run is for)."""
+        spec, penalty = self.spec, self.spec.constraints.penalty
+        criteria = {}
+        for k, criterion in enumerate(spec.objective.criteria):
+            column = [run[k] for run in scores]
+            finite = bool(column) and all(math.isfinite(v) for v in column)
+            criteria[criterion.name] = (max(column) if criterion.aggregate == "worst"
+                                        else float(np.mean(column))) if finite else None
+        known = [v for v in criteria.values() if v is not None]
+        total = float(np.mean(known)) if len(known) == len(criteria) else None
+        tradeoff = criteria if spec.objective.type == "tradeoff" else None
+        if violation > 0 or total is None:
             return Outcome(penalty + min(violation, penalty), False, constraints, metrics,
-                           value=total, margin=_margin(slacks))
-        return Outcome(float(total), True, constraints, metrics, value=float(total),
-                       margin=_margin(slacks))
+                           value=total, margin=_margin(slacks), criteria=tradeoff)
+        return Outcome(total, True, constraints, metrics, value=total, margin=_margin(slacks),
+                       criteria=tradeoff)
 
     def baseline_metrics(self) -> dict:
         """The metrics of the constraints' baseline controller on every run (computed once)."""
-        if self._baseline is None:
+        return self.reference_metrics(self.spec.constraints.baseline,
+                                      "constraints.no_worse_than.controller")
+
+    def reference_metrics(self, controller: str, key: str = "objective") -> dict:
+        """The metrics of a controller file the spec names, on every run (computed once per
+        process). A relative term's metric must be positive there: it is divided by it."""
+        if controller not in self._references:
             from furuta_cosim.cosim import compile_controller, evaluate
 
-            self._baseline = {}
+            found = {}
             for label, prepared, session in self.runs():
                 try:
-                    compiled = compile_controller(prepared, self.spec.constraints.baseline)
+                    compiled = compile_controller(prepared, controller)
                 except ConfigError as error:
-                    raise error.within(f"{self.spec.source}: constraints.no_worse_than.controller") from None
-                self._baseline[label] = evaluate(prepared, session, compiled).metrics
-        return self._baseline
+                    raise error.within(f"{self.spec.source}: {key}") from None
+                found[label] = evaluate(prepared, session, compiled).metrics
+            for k, criterion in enumerate(self.spec.objective.criteria):
+                for n, term in enumerate(criterion.terms):
+                    if term.relative_to != controller:
+                        continue
+                    for label, values in found.items():
+                        value = values.get(term.metric)
+                        if not (isinstance(value, float) and math.isfinite(value) and value > 0):
+                            where = (f"objective.criteria[{k}].terms[{n}]" if self.spec.objective.type
+                                     == "tradeoff" else f"objective.terms[{n}]")
+                            raise ConfigError([f"{self.spec.source}: {where}.relative_to: "
+                                               f"{Path(controller).stem} has {term.metric} = {value} "
+                                               f"on {label}; a term is divided by it, so it must be "
+                                               "a positive number"])
+            self._references[controller] = found
+        return self._references[controller]
+
+    def check_references(self) -> None:
+        """Every controller the spec compares with, scored on every run before the search."""
+        if self.spec.constraints.no_worse_than:
+            self.baseline_metrics()
+        for term in self.spec.objective.all_terms:
+            if term.relative_to:
+                self.reference_metrics(term.relative_to)
 
     def runs(self):
         """Every scenario on every plant variant, prepared once, each with its open session."""
@@ -272,6 +325,9 @@ class Evaluator:
                                                f"(signals: {', '.join(prepared.metrics)})"])
                     named = [(f"objective.terms[{n}].metric", t.metric)
                              for n, t in enumerate(spec.objective.terms)]
+                    named += [(f"objective.criteria[{c}].terms[{n}].metric", t.metric)
+                              for c, criterion in enumerate(spec.objective.criteria_)
+                              for n, t in enumerate(criterion.terms)]
                     named += [(f"constraints.no_worse_than.metrics.{m}", m)
                               for m, _ in spec.constraints.no_worse_than]
                     for key, metric in named:

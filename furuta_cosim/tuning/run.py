@@ -41,6 +41,7 @@ def _record(index: int, x, names, outcome: Outcome, origin: str = "", surrogate=
                        "parameters": dict(zip(names, map(float, x))),
                        "objective": outcome.objective, "feasible": outcome.feasible,
                        "value": outcome.value, "margin": outcome.margin,
+                       **({"criteria": outcome.criteria} if outcome.criteria is not None else {}),
                        "constraints": outcome.constraints, "metrics": outcome.metrics,
                        "origin": origin, "surrogate": surrogate,
                        "wall_time": outcome.wall_time, "worker": outcome.worker, "error": outcome.error})
@@ -218,6 +219,9 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         raise ConfigError([f"--n-calls: expected a whole number from 1 to {MAX_CALLS}, got {n_calls}"])
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ConfigError([f"--seed: expected a whole number from 0 to 2^32 - 1, got {seed}"])
+    if method == "de" and spec.objective.type == "tradeoff":
+        raise ConfigError(["--optimizer de: differential evolution minimizes one number; a "
+                           "tradeoff objective is searched by bo or random"])
     check_workers(workers)
     if dask is not None:
         from furuta_cosim.tuning.executors import check_address
@@ -230,10 +234,9 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         raise ConfigError([f"-o {folder}: holds a tuning run already; choose another folder "
                            "or --resume it"])
     evaluator = Evaluator(spec)
-    if spec.objective.type == "scenarios":
+    if spec.objective.type != "spectral":
         evaluator.runs()  # every scenario and variant prepared (and checked) before any file
-        if spec.constraints.no_worse_than:
-            evaluator.baseline_metrics()
+        evaluator.check_references()
     identity = {"spec": Path(spec.path).read_text() if spec.path else spec.name,
                 "method": method, "seed": seed}
     if resume:
@@ -371,6 +374,7 @@ def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[floa
 
 
 def _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, progress, log):
+    from furuta_cosim.tuning import pareto
     from furuta_cosim.tuning.optimizers import ConstrainedBO, batches
 
     settings, records = spec.optimizer, history.records
@@ -392,7 +396,10 @@ def _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, prog
         if first + count <= len(records):
             continue  # evaluated before a resume
         started = time.perf_counter()
-        proposal = optimizer.propose(records[:first], len(design), number)
+        seen = records[:first]
+        if spec.objective.type == "tradeoff":  # ParEGO: this batch's scalarization
+            seen = pareto.scalarized(seen, [c.name for c in spec.objective.criteria], seed, number)
+        proposal = optimizer.propose(seen, len(design), number)
         points = proposal.points(count)
         xs, pending = [], []
         done = len(records) - first  # a resume in the middle of this batch: proposed again
@@ -475,7 +482,8 @@ def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, b
 
 
 def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> dict:
-    from furuta_cosim.controllers import ControllerFile, load_controller, save_controller
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.tuning.saved import save_scored
 
     feasible = [r for r in records if r["feasible"]]
     best = min(feasible, key=lambda r: (r["objective"], r["index"])) if feasible else None
@@ -485,6 +493,8 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
         outcome = evaluator.score(cfile.controller)
         baselines[cfile.name] = json_safe({"objective": outcome.objective,
                                             "feasible": outcome.feasible,
+                                            **({"criteria": outcome.criteria}
+                                               if outcome.criteria is not None else {}),
                                             "constraints": outcome.constraints,
                                             "metrics": outcome.metrics})
     failures = sum(1 for r in records if r["error"])
@@ -493,20 +503,16 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
                 "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
                 "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines}
     if best is not None:
-        # everything the scoring used: the controller at the recorded point and the prefilter
-        # each run computed for it (one tracked output: the file holds one F)
-        controller = evaluator.space.controller(best["x"], name=f"{spec.name}-best")
-        tracked, F = _prefilter(evaluator, controller)
-        provenance = {"method": f"furuta-cosim tune ({method})", "spec": spec.name, "seed": seed,
-                      "evaluation": best["index"], "objective": best["objective"],
-                      "origin": best.get("origin") or ""}
-        save_controller(ControllerFile(controller, spec.period, spec.model, tracked, F,
-                                       f"best of tuning {spec.name} ({method}, seed {seed})",
-                                       provenance=provenance), folder / "best.yaml")
+        prefilter = save_scored(evaluator, best, folder / "best.yaml", f"{spec.name}-best",
+                                f"best of tuning {spec.name} ({method}, seed {seed})", method, seed)
         document["best"] = {"index": best["index"], "objective": best["objective"],
                             "origin": best.get("origin") or "", "parameters": best["parameters"],
                             "metrics": best["metrics"], "file": "best.yaml",
-                            "prefilter": {"output": tracked, "F": F}}
+                            "prefilter": prefilter}
+    if spec.objective.type == "tradeoff":
+        from furuta_cosim.tuning.front import write_front
+
+        document["front"] = write_front(evaluator, folder, records, baselines, method, seed)
     levels = {name: b["objective"] for name, b in baselines.items() if b["feasible"]}
     plot_convergence(records, folder / "convergence", levels)
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
@@ -514,31 +520,12 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
     return document
 
 
-def _prefilter(evaluator, controller) -> tuple[str, float]:
-    """The tracked output and prefilter F the scoring used (the first run's, when runs track
-    different outputs; the model's default output for the spectral objective)."""
-    from furuta_cosim.controllers import default_output
-    from furuta_cosim.design.prefilter import prefilter
-
-    prefilters = evaluator.prefilters(controller) if evaluator.spec.objective.type == "scenarios" else {}
-    if prefilters:
-        tracked = next(iter(prefilters))
-        return tracked, float(prefilters[tracked])
-    tracked = default_output(evaluator.model)
-    return tracked, float(prefilter(evaluator.model, controller, tracked))
-
-
 def summary_text(spec: TuningSpec, document: dict) -> str:
     """summary.md: the run's summary document in words (what ``tune`` prints)."""
     lines = [f"# Tuning {spec.name}", "", spec.description, "",
              f"- method: {document['method']}, seed {document['seed']}, {document['evaluations']} "
              f"evaluations, {document['feasible']} feasible, {document['failed']} failed",
-             f"- objective: {document['objective']}"
-             + (" (the paper's max |Re eig(Abar)| as stated: it measures the fastest mode, not the "
-                "slowest, so it rewards poles near the imaginary axis; docs/paper-readings.md §3)"
-                if document["objective"] == "spectral" else
-                " = " + " + ".join(f"{t.weight:g} {t.metric}" for t in spec.objective.terms)
-                + f", {spec.objective.aggregate} over scenarios and plant variants"),
+             f"- objective: {document['objective']}" + _described(spec.objective),
              f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
              f"{document['evaluation_seconds']:.1f} s", ""]
     best = document["best"]
@@ -549,6 +536,10 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
                                                     if F else "") + ").")
     else:
         lines.append("No feasible controller was found.")
+    if document.get("front") is not None:
+        from furuta_cosim.tuning.front import summary_lines
+
+        lines += summary_lines(spec, document["front"]) + [""]
     for name, baseline in document["baselines"].items():
         verdict = f"{baseline['objective']:.6g}" if baseline["feasible"] else \
             f"infeasible (score {baseline['objective']:.6g})"
@@ -558,11 +549,12 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
                       else f" - the tuned controller does NOT beat it (worse by "
                            f"{(best['objective'] / baseline['objective'] - 1) * 100:.1f} %)")
         lines.append(f"- {name}, scored alike: {verdict}{better}")
-        if best and baseline["feasible"] and best.get("metrics") and baseline.get("metrics"):
+        if best and baseline["feasible"] and best.get("metrics") and baseline.get("metrics") \
+                and spec.objective.type == "scenarios":
             lines += _run_by_run(spec, best["metrics"], baseline["metrics"], name)
     if best and best.get("metrics"):
         lines += ["", "Metric by metric, on every scenario and plant variant:", ""]
-        keys = list(dict.fromkeys([t.metric for t in spec.objective.terms]
+        keys = list(dict.fromkeys([t.metric for t in spec.objective.all_terms]
                                   + [m for m, _ in spec.constraints.no_worse_than]
                                   + ["error.ISE", "u.rms", "u.peak_abs"]
                                   + [f"{name}.max_abs" for name, _ in spec.constraints.max_abs]))
@@ -586,6 +578,23 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
             lines += ["", "The same for the tuned controller and every baseline (left out of the "
                           "table): " + ", ".join(same) + "."]
     return "\n".join(lines) + "\n"
+
+
+def _described(objective) -> str:
+    """The objective in words, after its type."""
+    if objective.type == "spectral":
+        return (" (the paper's max |Re eig(Abar)| as stated: it measures the fastest mode, not the "
+                "slowest, so it rewards poles near the imaginary axis; docs/paper-readings.md §3)")
+
+    def terms(criterion) -> str:
+        return " + ".join(f"{t.weight:g} {t.metric}" + (f" / {Path(t.relative_to).stem}'s"
+                                                        if t.relative_to else "")
+                          for t in criterion.terms) + f", {criterion.aggregate} over scenarios and plant variants"
+
+    if objective.type == "scenarios":
+        return " = " + terms(objective.criteria[0])
+    return (" of " + "; ".join(f"{c.name} = {terms(c)}" for c in objective.criteria)
+            + " (each minimized; best.yaml is the point of the lowest mean of the criteria)")
 
 
 def _run_by_run(spec: TuningSpec, tuned: dict, baseline: dict, name: str) -> list[str]:

@@ -27,7 +27,7 @@ from furuta_cosim.scenario import scenario_path
 from furuta_cosim.tuning.space import KINDS, Block
 
 METHODS = ("bo", "random", "de")
-OBJECTIVES = ("spectral", "scenarios")
+OBJECTIVES = ("spectral", "scenarios", "tradeoff")
 AGGREGATES = ("worst", "mean")
 
 
@@ -35,6 +35,16 @@ AGGREGATES = ("worst", "mean")
 class Term:
     metric: str
     weight: float
+    relative_to: str | None = None     # a controller file: the metric divided by its value there
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """One number of a candidate: its weighted terms on each run, aggregated over the runs."""
+
+    name: str
+    terms: tuple[Term, ...]
+    aggregate: str
 
 
 @dataclass(frozen=True)
@@ -43,6 +53,19 @@ class Objective:
     scenarios: tuple[str, ...] = ()    # resolved scenario files
     terms: tuple[Term, ...] = ()
     aggregate: str = "worst"
+    criteria_: tuple[Criterion, ...] = ()  # tradeoff: two or more, each minimized
+
+    @property
+    def criteria(self) -> tuple[Criterion, ...]:
+        """What a candidate is scored by: a scenarios objective is the one criterion
+        ``objective``; a tradeoff has its own."""
+        if self.type == "scenarios":
+            return (Criterion("objective", self.terms, self.aggregate),)
+        return self.criteria_
+
+    @property
+    def all_terms(self) -> tuple[Term, ...]:
+        return tuple(term for criterion in self.criteria for term in criterion.terms)
 
 
 @dataclass(frozen=True)
@@ -134,7 +157,8 @@ def load_spec(name: str | Path) -> TuningSpec:
     blocks = tuple(_block(check, parameters[key], key, shape) if key in parameters
                    else (Block(key, "fixed", shape) if key != "Dc" else _block(check, None, key, shape))
                    for key, shape in shapes.items())
-    objective = _objective(check, top.get("objective"))
+    objective = _objective(check, top.get("objective"),
+                           lambda name, key: _controller_file(check, name, key, model))
     constraints = _constraints(check, top.get("constraints", {}))
     optimizer = _optimizer(check, top.get("optimizer", {}))
     variants = _variants(check, top.get("variants", [{}]))
@@ -158,6 +182,9 @@ def load_spec(name: str | Path) -> TuningSpec:
     name = (check.file_name(top["name"], "name") if "name" in top
             else check.file_name(path.stem, "name (taken from the file name)"))
     description = check.text(top["description"], "description") if "description" in top else ""
+    if objective and objective.type == "tradeoff" and optimizer and optimizer.method == "de":
+        check.fail("optimizer.method", "de minimizes one number; a tradeoff objective is searched "
+                                       "by bo or random")
     if optimizer and optimizer.batch > optimizer.n_calls:
         check.fail("optimizer.batch", f"larger than the budget optimizer.n_calls ({optimizer.n_calls})")
     if optimizer and optimizer.method == "bo" and optimizer.n_initial_points > optimizer.n_calls:
@@ -284,39 +311,37 @@ def _entries(check: Checker, value, key: str, shape) -> tuple | None:
     return tuple(result)
 
 
-def _objective(check: Checker, value) -> Objective | None:
+def _objective(check: Checker, value, controller) -> Objective | None:
+    """``controller(name, key)``: a controller file the spec names, resolved and checked."""
     section = check.mapping(value, "objective", required=("type",),
-                            optional=("scenarios", "terms", "aggregate"))
+                            optional=("scenarios", "terms", "aggregate", "criteria"))
     if not section or "type" not in section:
         return None
     kind = check.string(section["type"], "objective.type", OBJECTIVES)
     if kind == "spectral":
-        for key in ("scenarios", "terms"):
+        for key in ("scenarios", "terms", "criteria"):
             if key in section:
                 check.fail(f"objective.{key}", "the spectral objective uses no scenarios")
         return Objective("spectral")
     if kind is None:
         return None
+    wrong = "criteria" if kind == "scenarios" else "terms"
+    if wrong in section:
+        check.fail(f"objective.{wrong}", f"a {kind} objective has "
+                   + ("terms (one number)" if kind == "scenarios" else "criteria (two or more numbers), each with its terms"))
     scenarios = check.names(section.get("scenarios"), "objective.scenarios") if "scenarios" in section else None
     if not scenarios:
         check.fail("objective.scenarios", "expected at least one scenario name or file")
-    terms = []
-    raw = section.get("terms")
-    if not isinstance(raw, list) or not raw:
-        check.fail("objective.terms", "expected a list of {metric, weight}")
+    terms, aggregate, criteria = (), Objective.aggregate, ()
+    if kind == "scenarios":
+        terms = _terms(check, section.get("terms"), "objective.terms", controller)
+        aggregate = check.string(section.get("aggregate", Objective.aggregate), "objective.aggregate",
+                                 AGGREGATES) or Objective.aggregate
     else:
-        for k, item in enumerate(raw):
-            term = check.mapping(item, f"objective.terms[{k}]", required=("metric",), optional=("weight",))
-            if not term or "metric" not in term:
-                continue
-            metric = checked(check, term["metric"], f"objective.terms[{k}].metric")
-            weight = check.number(term.get("weight", 1.0), f"objective.terms[{k}].weight", minimum=0.0)
-            if metric and weight is not None:
-                terms.append(Term(metric, weight))
-        if terms and len(terms) == len(raw) and not any(t.weight > 0 for t in terms):
-            check.fail("objective.terms", "every weight is 0: nothing to minimize")
-    aggregate = check.string(section.get("aggregate", Objective.aggregate), "objective.aggregate",
-                             AGGREGATES)
+        if "aggregate" in section:
+            check.fail("objective.aggregate", "a tradeoff objective aggregates per criterion "
+                                              "(objective.criteria[k].aggregate)")
+        criteria = _criteria(check, section.get("criteria"), controller)
     # resolved once, here: a file beside the spec, or a name in scenarios/
     resolved = []
     for k, name in enumerate(scenarios or []):
@@ -329,7 +354,52 @@ def _objective(check: Checker, value) -> Objective | None:
             check.fail(f"objective.scenarios[{k}]", f"{name}: no such scenario file")
             continue
         resolved.append(str(path))
-    return Objective("scenarios", tuple(resolved), tuple(terms), aggregate or Objective.aggregate)
+    return Objective(kind, tuple(resolved), terms, aggregate, criteria)
+
+
+def _terms(check: Checker, raw, key: str, controller) -> tuple[Term, ...]:
+    terms = []
+    if not isinstance(raw, list) or not raw:
+        check.fail(key, "expected a list of {metric, weight, relative_to}")
+        return ()
+    for k, item in enumerate(raw):
+        where = f"{key}[{k}]"
+        term = check.mapping(item, where, required=("metric",), optional=("weight", "relative_to"))
+        if not term or "metric" not in term:
+            continue
+        metric = checked(check, term["metric"], f"{where}.metric")
+        weight = check.number(term.get("weight", 1.0), f"{where}.weight", minimum=0.0)
+        relative = None
+        if "relative_to" in term:
+            name = check.string(term["relative_to"], f"{where}.relative_to")
+            relative = controller(name, f"{where}.relative_to") if name else None
+        if metric and weight is not None:
+            terms.append(Term(metric, weight, relative))
+    if terms and len(terms) == len(raw) and not any(t.weight > 0 for t in terms):
+        check.fail(key, "every weight is 0: nothing to minimize")
+    return tuple(terms)
+
+
+def _criteria(check: Checker, raw, controller) -> tuple[Criterion, ...]:
+    if not isinstance(raw, list) or len(raw) < 2:
+        check.fail("objective.criteria", "expected a list of two or more {name, terms, aggregate}: "
+                                         "a trade-off needs at least two numbers")
+        return ()
+    criteria, names = [], set()
+    for k, item in enumerate(raw):
+        where = f"objective.criteria[{k}]"
+        section = check.mapping(item, where, required=("name", "terms"), optional=("aggregate",))
+        if not section or "name" not in section:
+            continue
+        name = check.file_name(section["name"], f"{where}.name")
+        if name in names:
+            check.fail(f"{where}.name", f"{name!r} names an earlier criterion too")
+        names.add(name)
+        terms = _terms(check, section.get("terms"), f"{where}.terms", controller)
+        aggregate = check.string(section.get("aggregate", "mean"), f"{where}.aggregate", AGGREGATES)
+        if name and terms and aggregate:
+            criteria.append(Criterion(name, terms, aggregate))
+    return tuple(criteria)
 
 
 def _constraints(check: Checker, value) -> Constraints:

@@ -1,0 +1,229 @@
+"""Multi-objective tuning: Pareto fronts (ParEGO on the constrained BO), their files, terms
+relative to a baseline, and fronts of several runs compared."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from furuta_cosim.tuning import pareto
+from furuta_cosim.tuning.run import tune
+from furuta_cosim.tuning.spec import load_spec
+
+from conftest import run_cli
+
+SPEC = """\
+name: tradeoff-small
+controller: {n_xc: 1, time: continuous, period: 0.002, model: paper-printed}
+parameters:
+  Ac: {log: [-1, 2], sign: -1}
+  Bc: {box: [-1, 1]}
+  Cc: {fixed: [[1.0]]}
+  Dc: {lqr: [-2, 3], R: 10}
+objective:
+  type: tradeoff
+  scenarios: [paper-step]
+  criteria:
+    - {name: effort, terms: [{metric: u.rms, relative_to: lqr-paper}]}
+    - {name: tracking, terms: [{metric: error.ISE, relative_to: lqr-paper}], aggregate: worst}
+constraints: {stability_margin: 0.01, max_abs: {theta1: 0.5}, requirements: false}
+optimizer: {n_calls: 12, n_initial_points: 6, batch: 2}
+baselines: [lqr-paper]
+"""
+
+
+def spec_file(tmp_path, text=SPEC, name="tradeoff-small.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def history(folder):
+    return [json.loads(line) for line in (folder / "history.jsonl").read_text().splitlines()]
+
+
+def dominates(a, b):
+    return all(x <= y for x, y in zip(a, b)) and any(x < y for x, y in zip(a, b))
+
+
+# -- the front's arithmetic ------------------------------------------------------------------
+def test_nondominated_points_and_hypervolume_by_hand():
+    points = [(0, 1), (0.2, 0.2), (1, 0), (0.5, 0.6), (0.3, 0.5), (0.2, 0.2)]
+    assert pareto.nondominated(points) == [0, 1, 2]  # the repeated point counts once
+    assert pareto.hypervolume([(1, 1)], (2, 2)) == pytest.approx(1.0)
+    assert pareto.hypervolume([(0, 1), (1, 0)], (2, 2)) == pytest.approx(3.0)
+    # three unit-offset boxes in 3-D: 3 * 2 - 3 * 1 + 1 by inclusion and exclusion
+    assert pareto.hypervolume([(0, 1, 1), (1, 0, 1), (1, 1, 0)], (2, 2, 2)) == pytest.approx(4.0)
+    # dominated points and points beyond the reference add nothing
+    assert pareto.hypervolume([(0, 1), (1, 0), (1.5, 1.5), (3, 0)], (2, 2)) == pytest.approx(3.0)
+    # against a Monte Carlo estimate on a random front
+    rng = np.random.default_rng(0)
+    front = rng.random((12, 3))
+    samples = rng.random((200_000, 3))
+    covered = np.any(np.all(samples[:, None, :] >= front[None, :, :], axis=2), axis=1).mean()
+    assert pareto.hypervolume(front, (1, 1, 1)) == pytest.approx(covered, abs=5e-3)
+
+
+def test_the_knee_is_where_the_front_bends():
+    front = [(0.0, 1.0), (0.1, 0.5), (0.2, 0.2), (0.6, 0.1), (1.0, 0.0)]
+    assert pareto.knee(front) == 2
+    assert pareto.knee([(0.0, 1.0), (1.0, 0.0)]) == 0
+
+
+def test_scalarizations_are_a_function_of_the_seed_and_batch():
+    w = pareto.weights(3, 7, 2)
+    assert w.sum() == pytest.approx(1.0) and np.all(w >= 0)
+    assert np.array_equal(w, pareto.weights(3, 7, 2))
+    assert not np.array_equal(w, pareto.weights(3, 8, 2))
+    records = [{"criteria": {"a": 1.0, "b": 3.0}, "feasible": True, "objective": 2.0},
+               {"criteria": {"a": 2.0, "b": 1.0}, "feasible": True, "objective": 1.5},
+               {"criteria": None, "feasible": False, "objective": 1000.0}]
+    seen = pareto.scalarized(records, ["a", "b"], 3, 7)
+    assert seen[2]["value"] is None and seen[2]["objective"] == 1000.0
+    # normalized to [0, 1]: each record is 1 in one criterion and 0 in the other
+    assert seen[0]["value"] == pytest.approx(w[1] * (1 + pareto.RHO))
+    assert seen[1]["value"] == pytest.approx(w[0] * (1 + pareto.RHO))
+    assert records[0]["objective"] == 2.0  # the history itself is untouched
+
+
+# -- a run -----------------------------------------------------------------------------------
+def test_a_tradeoff_run_writes_its_front(tmp_path, capsys):
+    path = spec_file(tmp_path)
+    code, out, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"), "--workers", "1")
+    assert code == 0, err
+    folder = tmp_path / "run"
+    front = json.loads((folder / "front.json").read_text())
+    records = history(folder)
+    feasible = {r["index"]: [r["criteria"]["effort"], r["criteria"]["tracking"]]
+                for r in records if r["feasible"]}
+    on_front = [p["index"] for p in front["points"]]
+    assert on_front and set(on_front) <= set(feasible)
+    # non-dominated, and every other feasible point dominated by (or equal to) one of them
+    for i in on_front:
+        assert not any(dominates(feasible[j], feasible[i]) for j in feasible)
+    for j in set(feasible) - set(on_front):
+        assert any(dominates(feasible[i], feasible[j]) or feasible[i] == feasible[j] for i in on_front)
+    # ordered along the first criterion, marked in the history, one controller file each
+    efforts = [p["criteria"]["effort"] for p in front["points"]]
+    assert efforts == sorted(efforts)
+    assert {r["index"] for r in records if r["front"]} == set(on_front)
+    rows = list(csv.DictReader((folder / "front.csv").read_text().splitlines()))
+    assert [int(r["evaluation"]) for r in rows] == on_front
+    assert float(rows[0]["effort"]) == front["points"][0]["criteria"]["effort"]
+    assert sorted(p.name for p in (folder / "front").iterdir()) == \
+        [f"{k:02d}.yaml" for k in range(len(on_front))]
+    assert front["knee"] in on_front
+    for name in ("tradeoff.png", "tradeoff.svg", "convergence.png", "summary.md", "best.yaml"):
+        assert (folder / name).stat().st_size > 0
+    summary = (folder / "summary.md").read_text()
+    assert "Pareto front:" in summary and "Knee: evaluation" in summary and "lqr-paper (effort 1" in summary
+    # the LQR scored alike is the unit of both criteria
+    assert front["baselines"]["lqr-paper"]["criteria"] == {"effort": 1.0, "tracking": 1.0}
+
+
+def test_a_front_file_reruns_to_its_criteria(tmp_path, capsys):
+    """Each front file carries what the scoring used: simulate gives back its criteria."""
+    tune(load_spec(spec_file(tmp_path)), tmp_path / "run", workers=1)
+    front = json.loads((tmp_path / "run" / "front.json").read_text())
+    point = front["points"][-1]
+    metrics = {}
+    for name, cfile in (("tuned", tmp_path / "run" / point["file"]), ("lqr", "lqr-paper")):
+        code, out, err = run_cli(capsys, "simulate", "paper-step", "--controller", str(cfile),
+                                 "-o", str(tmp_path / name), "--no-trace", "--json")
+        assert code in (0, 1), err
+        metrics[name] = next(iter(json.loads(out)["controllers"].values()))["metrics"]
+    assert metrics["tuned"]["u.rms"] / metrics["lqr"]["u.rms"] == \
+        pytest.approx(point["criteria"]["effort"], rel=1e-9)
+    assert metrics["tuned"]["error.ISE"] / metrics["lqr"]["error.ISE"] == \
+        pytest.approx(point["criteria"]["tracking"], rel=1e-9)
+
+
+def strip(records):
+    return [{k: v for k, v in r.items() if k not in ("wall_time", "worker")} for r in records]
+
+
+@pytest.mark.parametrize("method", ["bo", "random"])
+def test_a_tradeoff_history_depends_on_neither_workers_nor_an_interruption(tmp_path, method):
+    spec = load_spec(spec_file(tmp_path))
+    tune(spec, tmp_path / "one", method=method, workers=1)
+    tune(spec, tmp_path / "two", method=method, workers=2)
+    assert strip(history(tmp_path / "one")) == strip(history(tmp_path / "two"))
+    # cut after evaluation 8 (the front marks go with the cut: they are the finished run's)
+    (tmp_path / "cut").mkdir()
+    for name in ("run.json", "spec.yaml"):
+        (tmp_path / "cut" / name).write_bytes((tmp_path / "one" / name).read_bytes())
+    lines = (tmp_path / "one" / "history.jsonl").read_text().splitlines(keepends=True)[:9]
+    (tmp_path / "cut" / "history.jsonl").write_text("".join(lines))
+    tune(spec, tmp_path / "cut", method=method, workers=1, resume=True)
+    assert strip(history(tmp_path / "cut")) == strip(history(tmp_path / "one"))
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"criteria": [{"name": "effort", "terms": [{"metric": "u.rms"}]}]}, "objective.criteria"),
+    ({"criteria": [{"name": "a", "terms": [{"metric": "u.rms"}]},
+                   {"name": "a", "terms": [{"metric": "error.ISE"}]}]}, "objective.criteria[1].name"),
+    ({"criteria": [{"name": "a", "terms": [{"metric": "u.rms", "relative_to": "no-such"}]},
+                   {"name": "b", "terms": [{"metric": "error.ISE"}]}]},
+     "objective.criteria[0].terms[0].relative_to"),
+    ({"criteria": [{"name": "a", "terms": [{"metric": "u.wobble"}]},
+                   {"name": "b", "terms": [{"metric": "error.ISE"}]}]},
+     "objective.criteria[0].terms[0].metric"),
+    ({"terms": [{"metric": "u.rms"}]}, "objective.terms"),
+    ({"aggregate": "mean"}, "objective.aggregate"),
+])
+def test_bad_tradeoff_specs_are_one_line(tmp_path, capsys, change, key):
+    data = yaml.safe_load(SPEC)
+    data["objective"].update(change)
+    path = spec_file(tmp_path, yaml.safe_dump(data), "bad.yaml")
+    code, _, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, lines
+    assert lines[0].startswith(f"error: {path}: {key}"), lines[0]
+    assert not (tmp_path / "run").exists()
+
+
+def test_differential_evolution_refuses_a_tradeoff(tmp_path, capsys):
+    path = spec_file(tmp_path)
+    code, _, err = run_cli(capsys, "tune", str(path), "--optimizer", "de", "-o", str(tmp_path / "run"))
+    assert code == 2 and "minimizes one number" in err and not (tmp_path / "run").exists()
+    data = yaml.safe_load(SPEC)
+    data["optimizer"]["method"] = "de"
+    code, _, err = run_cli(capsys, "tune", str(spec_file(tmp_path, yaml.safe_dump(data), "de.yaml")),
+                           "-o", str(tmp_path / "run"))
+    assert code == 2 and "optimizer.method" in err
+
+
+def test_a_relative_term_counts_every_run_alike(tmp_path):
+    """Divided by the baseline's value on the same run, the baseline scores 1 on each."""
+    text = SPEC.replace("scenarios: [paper-step]", "scenarios: [paper-tracking, noise]")
+    spec = load_spec(spec_file(tmp_path, text))
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.tuning.objective import Evaluator
+
+    evaluator = Evaluator(spec)
+    outcome = evaluator.score(load_controller("lqr-paper").controller)
+    assert outcome.criteria == {"effort": pytest.approx(1.0, rel=1e-12),
+                                "tracking": pytest.approx(1.0, rel=1e-12)}
+    # while the absolute voltages differ several times between the two runs
+    rms = [outcome.metrics[run]["u.rms"] for run in ("paper-tracking", "noise")]
+    assert max(rms) / min(rms) > 3
+
+
+def test_fronts_of_two_runs_on_one_figure(tmp_path, capsys):
+    spec = load_spec(spec_file(tmp_path))
+    tune(spec, tmp_path / "a", workers=1)
+    tune(spec, tmp_path / "b", method="random", workers=1)
+    code, out, err = run_cli(capsys, "fronts", str(tmp_path / "a"), str(tmp_path / "b"),
+                             "-o", str(tmp_path / "cmp"))
+    assert code == 0, err
+    document = json.loads((tmp_path / "cmp" / "fronts.json").read_text())
+    assert set(document["runs"]) == {"tradeoff-small", "tradeoff-small'"}
+    for run in document["runs"].values():
+        assert run["hypervolume"] > 0
+        assert set(run["at_baselines"]["lqr-paper"]) == {"effort", "tracking"}
+    assert "At lqr-paper (effort 1, tracking 1)" in out
+    assert (tmp_path / "cmp" / "fronts.png").stat().st_size > 0
+    code, _, err = run_cli(capsys, "fronts", str(tmp_path / "a"), str(tmp_path / "nothing"))
+    assert code == 2 and "no front.json" in err and "Traceback" not in err
