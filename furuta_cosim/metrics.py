@@ -106,6 +106,24 @@ def _integrals(t: np.ndarray, e: np.ndarray, dt: float) -> dict:
             "ITAE": float(np.sum(t * np.abs(e)) * dt)}
 
 
+def standing_still(trace, error_window=None) -> dict[str, float]:
+    """The error metrics of ``trace``'s reference had the tracked output stayed at its first
+    value: what a tracking metric of a controller that does nothing about the reference is
+    compared with. Empty when the reference never moves: then the error is regulation, which
+    no controller gets for free."""
+    if not len(trace.r) or np.ptp(trace.r) == 0:
+        return {}
+    t, dt = trace.t, (trace.t[1] - trace.t[0]) if len(trace.t) > 1 else 1.0
+    y = trace.signals[trace.tracked]
+    e = trace.r - (y[0] if len(y) else 0.0)
+    metrics = {f"error.{name}": value for name, value in _integrals(t, e, dt).items()}
+    window = slice(None)
+    if error_window:
+        window = (t >= error_window[0] - 1e-12) & (t < error_window[1] - 1e-12)
+    metrics["error.RMS"] = float(np.sqrt(np.mean(e[window] ** 2)))
+    return metrics
+
+
 def step_metrics(t: np.ndarray, y: np.ndarray, y0: float, yfinal: float) -> dict | None:
     """step_info of y going from y0 to yfinal; None when there is no change to measure."""
     change = yfinal - y0

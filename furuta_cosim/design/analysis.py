@@ -17,7 +17,7 @@ from scipy import linalg
 
 from furuta_cosim.design.controller import GeneralizedController, augmented, discretize_controller
 from furuta_cosim.design.linear import LinearModel, time_text
-from furuta_cosim.design.prefilter import prefilter
+from furuta_cosim.design.prefilter import prefilter, tracking_bandwidth
 from furuta_cosim.errors import DesignError
 
 MARGIN = 1e-9
@@ -68,6 +68,7 @@ class Analysis:
     tracked_output: str | None = None
     prefilter_problem: str | None = None
     time_unit: str = "s"
+    bandwidth: float | None = None       # -3 dB of rbar -> the tracked output (rad per time unit)
 
     @property
     def discrete(self) -> bool:
@@ -104,6 +105,7 @@ class Analysis:
                                  "spectral_radius": self.sampled.spectral_radius,
                                  "stable": self.sampled.stable,
                                  "dominant": self.sampled.dominant.as_dict()}
+        result["tracking_bandwidth"] = self.bandwidth
         result["prefilter"] = ({"output": self.tracked_output, "F": self.prefilter}
                                if self.prefilter is not None else
                                {"output": self.tracked_output, "problem": self.prefilter_problem})
@@ -140,6 +142,13 @@ class Analysis:
         if self.prefilter is not None:
             lines.append(f"Prefilter for {self.tracked_output}: F = {self.prefilter:.6g}."
                          + ("" if self.stable else " (The loop is unstable, so it never settles there.)"))
+            if self.bandwidth is not None and self.stable:
+                unit = self.time_unit
+                lines.append(f"Tracking bandwidth (-3 dB, r to {self.tracked_output}): "
+                             f"{self.bandwidth:.4g} rad/{unit}: it follows a sine of period "
+                             f"{time_text(2 * math.pi / self.bandwidth, unit)} or longer with at "
+                             "least 71 % of its amplitude." if math.isfinite(self.bandwidth) else
+                             f"Tracking bandwidth (-3 dB, r to {self.tracked_output}): not reached.")
         elif self.prefilter_problem:
             lines.append(f"No prefilter: {self.prefilter_problem}")
         return lines
@@ -188,12 +197,14 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
     sampled = None
     if sampling_period and not discrete and not model.discrete:
         sampled = analyze(model, discretize_controller(controller, sampling_period), margin=margin)
-    F = problem = None
+    F = problem = bandwidth = None
     if tracked_output:
         try:
             F = prefilter(model, controller, tracked_output)
         except DesignError as error:
             problem = str(error)
+        if F is not None and stable:
+            bandwidth = tracking_bandwidth(model, controller, tracked_output, F)
     return Analysis(model.name, controller.name, period, eigenvalues, stable, dominant, ac,
                     controller_stable, variance, sampled, F, tracked_output, problem,
-                    model.time_unit)
+                    model.time_unit, bandwidth)

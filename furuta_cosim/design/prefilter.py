@@ -38,3 +38,31 @@ def prefilter(model: LinearModel, controller: GeneralizedController, output: str
         raise DesignError(f"prefilter: the DC gain from r to {output} is {gain:.3g}, so no "
                           "prefilter can make it track (the loop blocks that output at steady state)")
     return 1.0 / gain
+
+
+def tracking_bandwidth(model: LinearModel, controller: GeneralizedController, output: str,
+                       F: float) -> float:
+    """The -3 dB bandwidth (rad per time unit) of rbar -> ``output`` with prefilter F: the
+    lowest frequency where the gain falls to 1/sqrt(2) of its DC value, so the fastest sine
+    the loop follows with at least 71 % of its amplitude (infinite when it never falls that
+    far below the Nyquist frequency of a discrete loop, or 1e6 rad per time unit)."""
+    from scipy.optimize import brentq
+
+    Abar, Bbar = augmented(model, controller)
+    c = np.concatenate([model.output_vector(output), np.zeros(controller.n_xc)])
+    identity = np.eye(len(Abar))
+
+    def gain(w: float) -> float:
+        point = np.exp(1j * w * controller.period) if controller.discrete else 1j * w
+        return float(abs(c @ np.linalg.solve(point * identity - Abar, Bbar[:, 0] * F)))
+
+    level = abs(dc_gain(model, controller, output) * F) / np.sqrt(2.0)
+    top = np.pi / controller.period if controller.discrete else 1e6
+    grid = np.logspace(-6, np.log10(top), 2000)
+    below = [w for w in grid if gain(w) < level]
+    if not below:
+        return float("inf")
+    k = int(np.searchsorted(grid, below[0]))
+    if k == 0:
+        return float(grid[0])
+    return float(brentq(lambda w: gain(w) - level, grid[k - 1], grid[k], xtol=1e-12, rtol=1e-10))

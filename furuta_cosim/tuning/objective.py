@@ -94,6 +94,7 @@ class Evaluator:
         self.space = Space(spec.blocks, self.model, spec.period, spec.discrete)
         self._runs = None  # [(label, prepared, session)], prepared on first use
         self._references = {}  # controller file -> its metrics by run (computed once)
+        self._still = {}       # run -> the error metrics of an output that never moves
 
     # -- the cheap checks ------------------------------------------------------------------
     def loop_checks(self, controller: GeneralizedController) -> tuple[dict, float]:
@@ -265,7 +266,12 @@ class Evaluator:
                     compiled = compile_controller(prepared, controller)
                 except ConfigError as error:
                     raise error.within(f"{self.spec.source}: {key}") from None
-                found[label] = evaluate(prepared, session, compiled).metrics
+                result = evaluate(prepared, session, compiled)
+                found[label] = result.metrics
+                if label not in self._still:
+                    from furuta_cosim.metrics import standing_still
+
+                    self._still[label] = standing_still(result.trace, prepared.scenario.error_window)
             for k, criterion in enumerate(self.spec.objective.criteria):
                 for n, term in enumerate(criterion.terms):
                     if term.relative_to != controller:
@@ -281,6 +287,24 @@ class Evaluator:
                                                "a positive number"])
             self._references[controller] = found
         return self._references[controller]
+
+    def vacuous(self) -> list[str]:
+        """The tracking constraints an output that never moves would meet (its error metric
+        within the factor of the baseline's), run by run, in words: they test nothing there."""
+        found = []
+        constraints = self.spec.constraints
+        if not constraints.no_worse_than:
+            return found
+        baseline = self.baseline_metrics()
+        for metric, factor in constraints.no_worse_than:
+            for label, still in self._still.items():
+                value = baseline.get(label, {}).get(metric)
+                if metric in still and value is not None and still[metric] <= factor * value:
+                    found.append(f"constraints.no_worse_than.{metric} is vacuous on {label}: "
+                                 f"{Path(constraints.baseline).stem} scores {value:.4g}, an output "
+                                 f"that never moves {still[metric]:.4g}, within the factor "
+                                 f"{factor:g}: the constraint does not test tracking there")
+        return found
 
     def check_references(self) -> None:
         """Every controller the spec compares with, scored on every run before the search."""

@@ -237,6 +237,9 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
     if spec.objective.type != "spectral":
         evaluator.runs()  # every scenario and variant prepared (and checked) before any file
         evaluator.check_references()
+        if log:
+            for line in evaluator.vacuous():
+                log(f"warning: {spec.source}: {line}")
     identity = {"spec": Path(spec.path).read_text() if spec.path else spec.name,
                 "method": method, "seed": seed}
     if resume:
@@ -498,10 +501,12 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
                                             "constraints": outcome.constraints,
                                             "metrics": outcome.metrics})
     failures = sum(1 for r in records if r["error"])
+    warnings = evaluator.vacuous() if spec.objective.type != "spectral" else []
     document = {"spec": spec.name, "method": method, "seed": seed, "n_calls": n_calls,
                 "evaluations": len(records), "feasible": len(feasible), "failed": failures,
                 "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
-                "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines}
+                "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines,
+                "warnings": warnings}
     if best is not None:
         prefilter = save_scored(evaluator, best, folder / "best.yaml", f"{spec.name}-best",
                                 f"best of tuning {spec.name} ({method}, seed {seed})", method, seed)
@@ -528,6 +533,8 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
              f"- objective: {document['objective']}" + _described(spec.objective),
              f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
              f"{document['evaluation_seconds']:.1f} s", ""]
+    lines += [f"Warning: {line}." for line in document.get("warnings") or []]
+    lines += [""] if document.get("warnings") else []
     best = document["best"]
     if best:
         origin, F = best.get("origin") or "the search", best.get("prefilter") or {}
