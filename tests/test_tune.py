@@ -89,6 +89,15 @@ def edit(data, keys, value):
     (("parameters", "Cc"), {"box": [-1, 1], "entries": [[3, 0]]}, "parameters.Cc.entries"),
     (("parameters", "Dc"), {"lqr": [-2, 3], "R": 0}, "parameters.Dc.R"),
     (("parameters", "Cc"), {"fixed": [[1.0, 2.0]]}, "parameters.Cc.fixed"),
+    (("parameters", "Dc"), {"around": "no-such", "box": [-1, 1]}, "parameters.Dc.around"),
+    (("parameters", "Dc"), {"around": "toy-classical", "box": [-1, 1]}, "parameters.Dc.around"),
+    (("parameters", "Dc"), {"around": "lqr-paper", "box": [[-1] * 5, [1, 1]]}, "parameters.Dc.box[1]"),
+    (("parameters", "Dc"), {"around": "lqr-paper", "box": [[-1] * 5, [1, 1, -2, 1, 1]]},
+     "parameters.Dc.box"),
+    (("parameters", "Dc"), {"around": "lqr-paper", "box": [-1, 1], "fixed": [[0] * 5]},
+     "parameters.Dc.fixed"),
+    (("parameters", "Dc"), {"lqr": [-2, 3], "around": "lqr-paper"}, "parameters.Dc"),
+    (("optimizer", "warm_start"), "no", "optimizer.warm_start"),
     (("controller", "n_xc"), -1, "controller.n_xc"),
     (("controller", "model"), "segway", "controller.model"),
     (("controller", "time"), "later", "controller.time"),
@@ -338,7 +347,7 @@ def test_the_history_depends_on_neither_the_workers_nor_an_interruption(tmp_path
         folder = tmp_path / f"cut{cut}"
         shutil.copytree(tmp_path / "one", folder)
         for name in ("summary.json", "summary.md", "best.yaml"):
-            (folder / name).unlink()
+            (folder / name).unlink(missing_ok=True)  # none when nothing was feasible
         # what a kill -9 leaves: the lines so far, the next one torn
         (folder / "history.jsonl").write_text("".join(lines[:cut]) + lines[cut][:25])
         tune(spec, folder, method=method, n_calls=20, workers=1, resume=True)
@@ -402,3 +411,29 @@ def test_the_best_file_reruns_to_its_recorded_metrics(tmp_path, capsys):
                 assert metrics[key] == pytest.approx(value, rel=1e-9, abs=1e-12), (scenario, key)
     # the reference moves the arm: a wrong-signed prefilter could not reproduce error.ISE
     assert best["metrics"]["paper-tracking"]["error.ISE"] < 3.0
+
+
+def test_a_box_around_the_lqr_holds_the_published_controller(tmp_path, capsys):
+    """paper-spectral searches Dc as offsets from the LQR's gains, wide enough for the
+    published Dc: bo-paper is a point of the space, exactly; the search starts from the LQR
+    only (warm_start: false), and the published controller is scored alike."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.tuning.objective import Evaluator
+    from furuta_cosim.tuning.run import initial_design
+
+    spec = load_spec("paper-spectral")
+    evaluator = Evaluator(spec)
+    published = load_controller("bo-paper")
+    x, how = evaluator.space.point_of(published)
+    assert x is not None and how == "exactly"
+    built = evaluator.space.controller(x)
+    for key in ("Ac", "Bc", "Cc", "Dc"):
+        assert getattr(built, key) == pytest.approx(getattr(published.controller, key), rel=1e-12, abs=1e-12)
+    lqr = load_controller("lqr-paper").controller
+    x, how = evaluator.space.point_of(load_controller("lqr-paper"))
+    assert how == "exactly" and evaluator.space.controller(x).Dc == pytest.approx(lqr.Dc, abs=1e-12)
+    lines = []
+    design = initial_design(spec, evaluator, 0, lines.append)
+    assert [origin for _, origin in design][:1] == ["initial lqr-paper"]
+    assert not any("bo-paper" in line for line in lines) and len(design) == 10
+    assert evaluator.score(published.controller).objective == pytest.approx(371.02, abs=0.01)

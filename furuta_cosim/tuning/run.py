@@ -353,14 +353,15 @@ def _random(evaluator, executor, history, n_calls, seed, batch, clock, progress)
 
 
 def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[float], str]]:
-    """The initial design of ``bo``: the spec's baselines and ``optimizer.initial`` controllers
-    the space can represent (each said in one line, or why not), then a Latin hypercube up to
+    """The initial design of ``bo``: the spec's baselines (unless ``optimizer.warm_start`` is
+    false) and ``optimizer.initial`` controllers the space can represent (each said in one line, or why not), then a Latin hypercube up to
     ``optimizer.n_initial_points``."""
     from furuta_cosim.controllers import load_controller
     from furuta_cosim.tuning.optimizers import latin_hypercube
 
     design, seen = [], set()
-    for kind, names in (("baseline", spec.baselines), ("initial", spec.optimizer.initial)):
+    baselines = spec.baselines if spec.optimizer.warm_start else ()
+    for kind, names in (("baseline", baselines), ("initial", spec.optimizer.initial)):
         for name in names:
             cfile = load_controller(name)
             if cfile.name in seen:

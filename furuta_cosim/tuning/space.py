@@ -3,7 +3,9 @@
 Each of Ac, Bc, Cc, Dc is made by one block:
 
 - ``fixed``: the matrix as given;
-- ``box: [low, high]``: each free entry uniform in [low, high];
+- ``box: [low, high]``: each free entry uniform in [low, high] (or ``[[lows], [highs]]``, a
+  range per free entry); with ``around: CONTROLLER``, an offset from that controller file's
+  matrix (a box around the LQR's gains, say, wide enough to hold another design's);
 - ``log: [low, high]`` with ``sign``: each free entry sign * 10^e, e uniform in [low, high];
 - ``lqr: [low, high]`` (Dc only): Dc = lqr(model, Q = diag(10^q), R), one q per state in
   [low, high]: a gain that stabilizes the design model by construction, which raw boxes on
@@ -39,6 +41,12 @@ class Block:
     R: float = 1.0
     entries: tuple[tuple[int, int], ...] | None = None  # None: every entry
     fixed: tuple = ()                                    # the matrix, row by row
+    ranges: tuple[tuple[float, float], ...] = ()         # box: (low, high) per free entry
+    around: tuple = ()                                   # box: the matrix offsets start from
+
+    def bounds(self) -> list[tuple[float, float]]:
+        """(low, high) of each free entry's search value."""
+        return list(self.ranges) if self.ranges else [(self.low, self.high)] * len(self.free)
 
     @property
     def free(self) -> list[tuple[int, int]]:
@@ -57,6 +65,8 @@ class Block:
         return [f"{prefix}{self.key}[{i}][{j}]" + ("|" if prefix else "") for i, j in self.free]
 
     def base(self) -> np.ndarray:
+        if self.around:
+            return np.array(self.around, dtype=float).reshape(self.shape)
         if self.fixed:
             return np.array(self.fixed, dtype=float).reshape(self.shape)
         return np.zeros(self.shape)
@@ -69,7 +79,10 @@ class Block:
             return lqr(model, Q, self.R, period if period > 0 else None).K
         matrix = self.base()
         for (i, j), value in zip(self.free, values):
-            matrix[i, j] = self.sign * 10.0 ** value if self.kind == "log" else value
+            if self.kind == "log":
+                matrix[i, j] = self.sign * 10.0 ** value
+            else:
+                matrix[i, j] = matrix[i, j] + value if self.around else value
         return matrix
 
 
@@ -88,7 +101,7 @@ class Space:
 
     @property
     def bounds(self) -> list[tuple[float, float]]:
-        return [(block.low, block.high) for block in self.blocks for _ in block.free]
+        return [bounds for block in self.blocks for bounds in block.bounds()]
 
     def dimensions(self):
         """scikit-optimize's dimensions of the search."""
@@ -171,25 +184,29 @@ def _values_of(block: Block, given: np.ndarray, static: bool, cfile) -> tuple[li
             return None, (f"log10 diag(Q) = {np.round(q, 3).tolist()} is outside "
                           f"[{block.low:g}, {block.high:g}]")
         return q.tolist(), ""
-    middle = 0.5 * (block.low + block.high)
     values = []
-    for i, j in free:
+    base = block.base()
+    for (i, j), (low, high) in zip(free, block.bounds()):
         if static:
             if block.key == "Bc":
-                if block.kind != "box" or not block.low <= 0.0 <= block.high:
+                zero = -base[i, j] if block.around else 0.0
+                if block.kind != "box" or not low <= zero <= high:
                     return None, "a static controller needs Bc = 0, outside this block's range"
-                values.append(0.0)
+                values.append(zero)
             else:
-                values.append(middle)
+                values.append(0.5 * (low + high))
             continue
         value = float(given[i, j])
         if block.kind == "log":
             if value * block.sign <= 0:
                 return None, f"entry [{i}][{j}] = {value:g} has the other sign"
             value = math.log10(value * block.sign)
-        if not block.low - 1e-12 <= value <= block.high + 1e-12:
-            return None, f"entry [{i}][{j}] is outside [{block.low:g}, {block.high:g}]"
-        values.append(min(max(value, block.low), block.high))
+        elif block.around:
+            value -= base[i, j]
+        if not low - 1e-12 <= value <= high + 1e-12:
+            what = "its offset" if block.around else "it"
+            return None, f"entry [{i}][{j}]: {what} is outside [{low:g}, {high:g}]"
+        values.append(min(max(value, low), high))
     if static and block.key == "Bc":
         fixed_ok = all(block.base()[i, j] == 0 for i in range(block.shape[0])
                        for j in range(block.shape[1]) if (i, j) not in free)

@@ -18,6 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, load_yaml, resolve_file
 from furuta_cosim.defaults import PAPER_PERIOD
@@ -99,6 +101,7 @@ class OptimizerSettings:
     gp_restarts: int = 0
     region: str = "trust"               # bo's candidates: a trust region, or the whole space
     initial: tuple[str, ...] = ()       # controller files entering the initial design
+    warm_start: bool = True             # the spec's baselines enter the initial design too
 
 
 @dataclass(frozen=True)
@@ -154,11 +157,11 @@ def load_spec(name: str | Path) -> TuningSpec:
     shapes = {"Ac": (n_xc, n_xc), "Bc": (n_xc, n_x), "Cc": (n_u, n_xc), "Dc": (n_u, n_x)}
     parameters = check.mapping(top.get("parameters"), "parameters", optional=tuple(shapes)) or {}
     # a matrix the spec leaves out is zero (Dc excepted: the plant needs feedback)
-    blocks = tuple(_block(check, parameters[key], key, shape) if key in parameters
+    resolve = lambda name, key: _controller_file(check, name, key, model)  # noqa: E731
+    blocks = tuple(_block(check, parameters[key], key, shape, resolve) if key in parameters
                    else (Block(key, "fixed", shape) if key != "Dc" else _block(check, None, key, shape))
                    for key, shape in shapes.items())
-    objective = _objective(check, top.get("objective"),
-                           lambda name, key: _controller_file(check, name, key, model))
+    objective = _objective(check, top.get("objective"), resolve)
     constraints = _constraints(check, top.get("constraints", {}))
     optimizer = _optimizer(check, top.get("optimizer", {}))
     variants = _variants(check, top.get("variants", [{}]))
@@ -235,7 +238,8 @@ def _controller_file(check: Checker, name: str, key: str, model) -> str:
     return str(cfile.path.resolve())
 
 
-def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | None:
+def _block(check: Checker, value, key: str, shape: tuple[int, int], controller=None) -> Block | None:
+    """``controller(name, key)``: a controller file the spec names, resolved and checked."""
     where = f"parameters.{key}"
     if value is None:
         check.fail(where, "missing (Dc has no default: give fixed, box, log or lqr)")
@@ -249,7 +253,7 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | N
                           f"entries that are not free), got {', '.join(kinds)}")
         return None
     kind = next(k for k in ("lqr", "box", "log", "fixed") if k in value)
-    optional = {"fixed": ("fixed",), "box": ("box", "fixed", "entries"),
+    optional = {"fixed": ("fixed",), "box": ("box", "fixed", "entries", "around"),
                 "log": ("log", "sign", "fixed", "entries"), "lqr": ("lqr", "R")}[kind]
     section = check.mapping(value, where, optional=optional)
     if section is None:
@@ -267,9 +271,41 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | N
     if kind == "lqr" and key != "Dc":
         check.fail(where, "lqr makes Dc only")
         return None
-    bounds = check.vector(section[kind], f"{where}.{kind}", 2)
+    if "entries" in section:
+        entries = _entries(check, section["entries"], f"{where}.entries", shape)
+    else:
+        entries = None
+    ranges, around = (), ()
+    if kind == "box" and isinstance(section["box"], list) and len(section["box"]) == 2 \
+            and all(isinstance(side, list) for side in section["box"]):
+        # a range per free entry: [[lows], [highs]]
+        count = len(entries) if entries is not None else rows * cols
+        lows = check.vector(section["box"][0], f"{where}.box[0]", count)
+        highs = check.vector(section["box"][1], f"{where}.box[1]", count)
+        if lows is None or highs is None:
+            return None
+        bad = [k for k, (a, b) in enumerate(zip(lows, highs)) if not a < b]
+        if bad:
+            check.fail(f"{where}.box", f"expected low < high for every entry; not for entries {bad}")
+            return None
+        ranges = tuple(zip(lows, highs))
+        bounds = [min(lows), max(highs)]
+    else:
+        bounds = check.vector(section[kind], f"{where}.{kind}", 2)
     if bounds is None:
         return None
+    if "around" in section:
+        name = check.string(section["around"], f"{where}.around")
+        if name and controller is not None:
+            known = len(check.problems)
+            path = controller(name, f"{where}.around")
+            if len(check.problems) > known:
+                return None  # said: not a controller of this plant
+            around = _matrix_of(check, path, key, shape, f"{where}.around")
+            if around is None:
+                return None
+        if "fixed" in section:
+            check.fail(f"{where}.fixed", "around gives the entries that are not free")
     low, high = bounds
     if not low < high:
         check.fail(f"{where}.{kind}", f"expected [low, high] with low < high, got {bounds}")
@@ -289,9 +325,22 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int]) -> Block | N
         sign = sign or 1.0
     if kind == "lqr":
         R = check.number(section.get("R", 1.0), f"{where}.R", positive=True) or 1.0
-    if "entries" in section:
-        entries = _entries(check, section["entries"], f"{where}.entries", shape)
-    return Block(key, kind, shape, low, high, sign, R, entries, fixed)
+    return Block(key, kind, shape, low, high, sign, R, entries, fixed, ranges, around)
+
+
+def _matrix_of(check: Checker, path: str, key: str, shape, where: str) -> tuple | None:
+    """The matrix ``key`` of a controller file, row by row, when it has the block's shape."""
+    from furuta_cosim.controllers import load_controller
+
+    try:
+        matrix = np.asarray(getattr(load_controller(path).controller, key), dtype=float)
+    except ConfigError:
+        return None  # said already by the controller check
+    if matrix.shape != tuple(shape):
+        check.fail(where, f"{Path(path).stem}'s {key} is {matrix.shape[0]} x {matrix.shape[1]}; "
+                          f"the search's is {shape[0]} x {shape[1]}")
+        return None
+    return tuple(float(v) for v in matrix.reshape(-1))
 
 
 def _entries(check: Checker, value, key: str, shape) -> tuple | None:
@@ -445,13 +494,17 @@ def _optimizer(check: Checker, value) -> OptimizerSettings | None:
 
     defaults = OptimizerSettings()
     section = check.mapping(value, "optimizer", optional=("method", "region", "initial",
-                                                          *_OPTIMIZER_NUMBERS))
+                                                          "warm_start", *_OPTIMIZER_NUMBERS))
     if section is None:
         return None
     values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", METHODS),
               "region": check.string(section.get("region", defaults.region), "optimizer.region", REGIONS)}
     for key, rules in _OPTIMIZER_NUMBERS.items():
         values[key] = check.number(section.get(key, getattr(defaults, key)), f"optimizer.{key}", **rules)
+    values["warm_start"] = section.get("warm_start", defaults.warm_start)
+    if not isinstance(values["warm_start"], bool):
+        check.fail("optimizer.warm_start", f"expected true or false, got {values['warm_start']!r}")
+        values["warm_start"] = None
     if None in values.values():
         return None
     return OptimizerSettings(**values)
