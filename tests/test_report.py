@@ -41,18 +41,31 @@ def test_every_printed_number_and_claim_has_a_value_and_a_verdict(reproduction):
     topics = " ".join(c["topic"] for c in claims)
     for expected in ("A, linearized", "A(2,2)", "B, linearized", "K, LQR", "published BO controller stable on the printed",
                      "calibrated plant", "toy: eig(Abar)", "toy: eig(A - BK)", "toy: prefilters",
-                     "less effort", "LQR brings the pendulum back", "BO (GP + EI"):
+                     "less effort", "LQR brings the pendulum back", "BO (30 calls)",
+                     "block formula", "Table taken literally", "Table friction 1e-4",
+                     "sine reference (10 s period)", "re-weighting the LQR"):
         assert expected in topics, expected
     for claim in claims:
         assert claim["ours"] and claim["verdict"] in ("holds", "holds under a reading", "does not hold"), claim
+        assert claim["rule"], claim  # every verdict says the rule it follows from
+        # the verdict is the rule's outcome, read under a named reading or not
+        assert claim["verdict"] == ("does not hold" if not claim["passed"] else
+                                    "holds under a reading" if claim["reading"] else "holds")
     verdicts = {c["topic"]: c["verdict"] for c in claims}
     assert verdicts["A(2,2)"] == "does not hold"
+    assert verdicts["toy: eig(Abar) by the paper's block formula"] == "does not hold"
+    assert verdicts["the LQR follows the sine reference (10 s period)"] == "does not hold"
+    assert verdicts["the LQR follows the sine-follow reference (60 s period)"] == "holds"
+    # the paper column holds only what the paper prints: no value of ours for the prefilters
+    prefilters = next(c for c in claims if c["topic"].startswith("toy: prefilters"))
+    assert "2.0" not in prefilters["paper"] and "1.3667" not in prefilters["paper"]
     assert verdicts["K, LQR with Q = diag(1, 10, 100, 10, 1), R = 10"] == "holds under a reading"
     md = (folder / "reproduction.md").read_text()
     assert md.count("\n| ") == len(claims) + 1          # header + one row per claim
     assert "paper-readings.md" in md
     assert {p.name for p in (folder / "figures").glob("*.svg")} >= {"paper-step.svg", "toy-step.svg",
-                                                                    "toy-sine.svg", "convergence-effort.svg"}
+                                                                    "toy-sine.svg", "convergence-paper-spectral.svg",
+                                                                    "fronts-seed0.svg"}
 
 
 def test_the_html_is_self_contained(reproduction, runs):
@@ -149,3 +162,19 @@ def test_figures_and_tables_take_names_and_units_from_the_plant(tmp_path, capsys
     trace.units = {}  # a plant that declares no units: its tracked output and its input only
     assert trace.watched() == [] and default_signals(trace) == ["theta0", "u"]
     assert trace.label("theta1") == "theta1"
+
+
+def test_each_verdict_rule_on_numbers_by_hand():
+    from furuta_cosim.reproduce import at_most, below, rounds_to, same_set, truncates_to, within
+
+    assert rounds_to([2.994], [2.99]) and not rounds_to([2.996], [2.99])
+    assert rounds_to([-0.0311], [-0.03]) and not rounds_to([-0.0311], [-0.31])
+    assert rounds_to([100.4], [100.0]) and not rounds_to([100.6], [100.0])
+    assert truncates_to([-0.310523, 70.7488], [-0.31, 70.74])
+    assert not truncates_to([-0.3223], [-0.31]) and not truncates_to([70.7499], [70.75])
+    assert same_set([0.8, -0.5, 0.59 + 0.001j], [0.5, 0.59, 0.8], 5e-3)
+    assert not same_set([0.5, 0.99, 0.4768], [0.5, 0.59, 0.8], 5e-3)
+    assert not same_set([0.5, 0.8], [0.5, 0.59, 0.8], 5e-3)   # a missing value fails
+    assert within([1.0 + 1e-10], [1.0], 1e-9) and not within([1.0 + 1e-8], [1.0], 1e-9)
+    assert below(0.99, 1.0) and not below(1.0, 1.0) and not below(float("nan"), 1.0)
+    assert at_most(1.0, 1.0) and not at_most(float("inf"), 1.0)
