@@ -121,6 +121,10 @@ def test_a_tradeoff_run_writes_its_front(tmp_path, capsys):
     assert "Pareto front:" in summary and "Knee: evaluation" in summary and "lqr-paper (effort 1" in summary
     # the LQR scored alike is the unit of both criteria
     assert front["baselines"]["lqr-paper"]["criteria"] == {"effort": 1.0, "tracking": 1.0}
+    # the run's report page shows the trade-off beside the convergence
+    code, _, err = run_cli(capsys, "report", str(folder))
+    assert code == 0, err
+    assert (folder / "report.html").read_text().count("<svg") == 2
 
 
 def test_a_front_file_reruns_to_its_criteria(tmp_path, capsys):

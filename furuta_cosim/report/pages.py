@@ -97,7 +97,7 @@ def _tune(folder: Path) -> tuple[str, str, list]:
     md = summary + ("\n\n## Spec\n\n```\n" + spec.rstrip() + "\n```\n" if spec else "")
     provenance = {"spec": data.get("spec"), "method": data.get("method"), "seed": data.get("seed"),
                   "evaluations": data.get("evaluations"), "spec sha256": _hash(folder / "spec.yaml")}
-    figures = [p for p in [folder / "convergence.svg"] if p.is_file()]
+    figures = [p for p in [folder / "tradeoff.svg", folder / "convergence.svg"] if p.is_file()]
     return f"tune {data.get('spec')}", md, [provenance, figures]
 
 
