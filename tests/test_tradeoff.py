@@ -213,6 +213,9 @@ def test_a_relative_term_counts_every_run_alike(tmp_path):
     # while the absolute voltages differ several times between the two runs
     rms = [outcome.metrics[run]["u.rms"] for run in ("paper-tracking", "noise")]
     assert max(rms) / min(rms) > 3
+    # the shipped effort specs weigh their runs so: the LQR scores 1 + 0.1 on each
+    effort = Evaluator(load_spec("effort")).score(load_controller("lqr-paper").controller)
+    assert effort.objective == pytest.approx(1.1, rel=1e-12) and effort.feasible
 
 
 def test_fronts_of_two_runs_on_one_figure(tmp_path, capsys):

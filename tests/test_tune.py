@@ -279,13 +279,13 @@ def test_effort_says_plainly_whether_it_beat_the_lqr(tmp_path):
     if best is None:
         assert "No feasible controller was found." in summary
         return
-    for label in ("paper-tracking", "sine", "noise"):
+    for label in ("paper-tracking", "sine-follow", "noise"):
         ise = best["metrics"][label]["error.ISE"] / lqr["metrics"][label]["error.ISE"]
         assert ise <= 1.05 * (1 + 1e-12), (label, ise)  # tracking no worse than +5 %
     # run by run, where it uses less voltage than the LQR and where not, in so many words
     lower = next(line for line in summary.splitlines() if line.startswith("  - lower than lqr-paper"))
     higher = next(line for line in summary.splitlines() if line.startswith("  - not lower on:"))
-    for label in ("paper-tracking", "sine", "noise"):
+    for label in ("paper-tracking", "sine-follow", "noise"):
         ratios = [best["metrics"][label][m] / lqr["metrics"][label][m] for m in ("u.rms", "u.peak_abs")]
         assert label in (lower if max(ratios) < 1 else higher), (label, ratios)
         assert f"u.rms {(ratios[0] - 1) * 100:+.1f} %" in (lower if max(ratios) < 1 else higher)
@@ -301,7 +301,7 @@ def test_robust_effort_is_stable_on_every_plant_variant(tmp_path):
     document = tune(load_spec("robust-effort"), tmp_path / "run", n_calls=8, workers=2)
     assert document["best"], "no feasible controller in 8 calls"
     metrics = document["best"]["metrics"]
-    assert set(metrics) == {f"{s}[{k}]" for s in ("paper-tracking", "sine", "noise") for k in (0, 1)}
+    assert set(metrics) == {f"{s}[{k}]" for s in ("paper-tracking", "sine-follow", "noise") for k in (0, 1)}
     for values in metrics.values():
         assert values["theta1.max_abs"] <= 0.3  # bounded in co-simulation on both plants
 
@@ -396,7 +396,7 @@ def test_the_best_file_reruns_to_its_recorded_metrics(tmp_path, capsys):
     document = tune(load_spec("effort"), tmp_path / "run", n_calls=4, workers=1)
     best = document["best"]
     assert best and best["prefilter"]["output"] == "theta0" and best["prefilter"]["F"] < 0
-    for scenario in ("paper-tracking", "sine", "noise"):
+    for scenario in ("paper-tracking", "sine-follow", "noise"):
         code, out, err = run_cli(capsys, "simulate", scenario, "--controller",
                                  str(tmp_path / "run" / "best.yaml"), "-o", str(tmp_path / scenario),
                                  "--no-trace", "--json")
