@@ -104,3 +104,39 @@ def test_our_own_fmu_given_with_fmu_needs_no_mapping(furuta_fmu, tmp_path, capsy
     code, _, err = run_cli(capsys, "simulate", "paper-step", "--fmu", str(tmp_path / "missing.fmu"),
                            "-o", str(tmp_path / "out"))
     assert code == 2 and err == f"error: --fmu {tmp_path / 'missing.fmu'}: no such FMU file\n"
+
+
+@pytest.fixture(scope="module")
+def nan_plant(tmp_path_factory, foreign):
+    """paper-step on a pythonfmu plant whose outputs turn NaN at 14 ms, mapped like the
+    foreign pendulum."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    folder = tmp_path_factory.mktemp("nan-plant")
+    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
+                    str(Path(__file__).parent / "foreign" / "nan_fmu.py"), "-d", str(folder)],
+                   check=True, capture_output=True)
+    text = (foreign / "paper-step-mapped.yaml").read_text()
+    (folder / "paper-step-nan.yaml").write_text(text.replace("ForeignPendulum.fmu", "NanPlant.fmu"))
+    return folder
+
+
+def test_a_plant_output_that_turns_nan_fails_the_run(nan_plant, tmp_path, capsys):
+    scenario = nan_plant / "paper-step-nan.yaml"
+    prepared = prepare(load_scenario(scenario))
+    with PlantSession.open(prepared.fmu) as session:
+        result = evaluate(prepared, session, "lqr-paper")
+    # the first sample read after the step that crosses 14 ms, named by the scenario's name
+    assert result.failure and "output theta0 is nan at t = 0.016" in result.failure, result.failure
+    assert not result.passed
+    # the metrics come from the samples before it: none of them is NaN
+    assert len(result.trace.t) == 8 and all(np.isfinite(result.trace["theta1"]))
+    assert not any(np.isnan(v) for v in result.metrics.values() if v is not None)  # inf: never settled
+    code, out, err = run_cli(capsys, "simulate", str(scenario), "-o", str(tmp_path / "run"), "--no-trace")
+    assert code == 1, (out, err)
+    assert "is nan at t = 0.016" in out + err
+    code, out, err = run_cli(capsys, "regress", str(scenario), "--baselines", str(tmp_path / "b"),
+                             "--workers", "1")
+    assert code == 1 and "Traceback" not in err, (out, err)

@@ -147,6 +147,23 @@ def simulate(prepared: Prepared, controllers: Sequence | None = None) -> dict[st
     return {result.controller: result for result in runs(prepared, controllers)}
 
 
+def _first_not_finite(prepared: Prepared, table: np.ndarray, us) -> tuple[int, str] | None:
+    """The first sample where a plant output (or the input computed from them) is NaN or
+    infinite, and what it is in words; None when every one is finite."""
+    if not len(table):
+        return None
+    bad = ~np.isfinite(table)
+    inputs = ~np.isfinite(np.asarray(us[:len(table)], dtype=float))
+    if not bad.any() and not inputs.any():
+        return None
+    first_row = int(np.argmax(bad.any(axis=1))) if bad.any() else len(table)
+    first_input = int(np.argmax(inputs)) if inputs.any() else len(table)
+    if first_row <= first_input:
+        column = int(np.argmax(bad[first_row]))
+        return first_row, f"the plant's output {prepared.signals[column]} is {table[first_row, column]}"
+    return first_input, f"the input {prepared.control_input} is {float(us[first_input])}"
+
+
 def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
     controller = compiled.runtime
     scenario = prepared.scenario
@@ -188,7 +205,15 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
                    f"(peak |u| {peak:.3g}): {error}")
     n = len(us)
     rows = rows[:n]  # a failed step appended its row before the plant gave up
-    signals = {name: column for name, column in zip(prepared.signals, np.array(rows).T)} if n else \
+    table = np.array(rows, dtype=float).reshape(n, len(prepared.signals))
+    cut = _first_not_finite(prepared, table, us)
+    if cut is not None:
+        # a plant output that is not a number ends the run there, whatever its FMU says: no
+        # metric or requirement may be computed from it
+        n, what = cut
+        table = table[:n]
+        failure = f"{what} at t = {prepared.t[n]:.6g}: the run stops there"
+    signals = {name: column for name, column in zip(prepared.signals, table.T)} if n else \
         {name: np.zeros(0) for name in prepared.signals}
     if limit:
         signals[COMMAND] = np.array(commands[:n])
@@ -198,5 +223,5 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
         signals[estimate(prepared.states[j])] = column
     for j, name in enumerate(prepared.disturbances):
         signals[name] = prepared.disturbance[:n, j]
-    return Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us), signals,
+    return Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us[:n]), signals,
                  prepared.tracked, prepared.control_input, failure, dict(prepared.units))
