@@ -114,8 +114,9 @@ def table(results: dict, args) -> list[str]:
     for name, data in results.items():
         names = data["criteria"]
         lines += ["", f"{name}: hypervolume after {args.calls} calls over seeds 0-{args.seeds - 1}, as a "
-                      f"fraction of the reference front's ({len(data['reference_front'])} points: every "
-                      f"run and a {data['reference_evaluations']}-evaluation bo run), reference point "
+                      f"fraction of the reference front's ({len(data['reference_front'])} points: every run"
+                      + (f" and a {data['reference_evaluations']}-evaluation bo run"
+                         if data["reference_evaluations"] else "") + "), reference point "
                       + ", ".join(f"{n} {v:.4g}" for n, v in zip(names, data["reference_point"])), "",
                   "| method | median | worst | per seed | beyond the first baseline: median | worst |",
                   "| --- | --- | --- | --- | --- | --- |"]
