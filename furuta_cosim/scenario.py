@@ -132,6 +132,8 @@ class PlantMapping:
     initial: Mapping[str, str]         # state -> FMU parameter that sets its start value
     source: str | None = None          # a mapping file (regress --mapping), else the scenario's
     control_input: str | None = None   # the file's control_input
+    # FMU variable -> (scale, offset) given in the mapping: view value = scale * FMU value + offset
+    conversions: Mapping[str, tuple] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -339,14 +341,28 @@ def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapp
     section = check.mapping(value, prefix.rstrip(".") or "", optional=("states", "disturbances", "initial"))
     if section is None:
         return None
-    parts = {}
+    parts, conversions = {}, {}
     for part in ("states", "disturbances", "initial"):
         key = f"{prefix}{part}"
         raw = section.get(part, {})
         entries = check.mapping(raw, key, optional=tuple(raw) if isinstance(raw, dict) else ())
         names = {}
         for name, target in (entries or {}).items():
-            text = check.string(target, f"{key}.{name}")
+            where = f"{key}.{name}"
+            if isinstance(target, dict) and part != "initial":
+                # {variable: NAME, scale: S, offset: O}: the view's value is S * FMU value + O
+                entry = check.mapping(target, where, required=("variable",), optional=("scale", "offset"))
+                if not entry or "variable" not in entry:
+                    continue
+                text = check.string(entry["variable"], f"{where}.variable")
+                scale = check.number(entry.get("scale", 1.0), f"{where}.scale")
+                offset = check.number(entry.get("offset", 0.0), f"{where}.offset")
+                if scale == 0:
+                    check.fail(f"{where}.scale", "must not be 0 (the view's value is scale * FMU value + offset)")
+                elif text and scale is not None and offset is not None:
+                    conversions[text] = (float(scale), float(offset))
+            else:
+                text = check.string(target, where)
             if text:
                 names[str(name)] = text
         parts[part] = Frozen(names)
@@ -356,7 +372,8 @@ def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapp
         if parts["states"] and name not in parts["states"]:
             check.fail(f"{prefix}initial.{name}", f"not a mapped state "
                        f"(states: {', '.join(parts['states'])})")
-    return PlantMapping(parts["states"], parts["disturbances"], parts["initial"])
+    return PlantMapping(parts["states"], parts["disturbances"], parts["initial"],
+                        conversions=Frozen(conversions))
 
 
 def _timing(check: Checker, value):

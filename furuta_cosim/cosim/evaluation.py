@@ -164,6 +164,25 @@ def _first_not_finite(prepared: Prepared, table: np.ndarray, us) -> tuple[int, s
     return first_input, f"the input {prepared.control_input} is {float(us[first_input])}"
 
 
+def _converted(prepared: Prepared, session):
+    """The session's step and a reader of its outputs, both in the view's units: the plain
+    step when no variable is converted (the common case costs nothing)."""
+    conversions = prepared.conversions
+    if not conversions:
+        return session.step, list
+    fed = [prepared.control_input] + prepared.disturbance_inputs
+    into = [conversions.get(name, (1.0, 0.0)) for name in fed]
+    out = [conversions.get(name, (1.0, 0.0)) for name in prepared.outputs]
+
+    def read(values):
+        return [a * v + b for (a, b), v in zip(out, values)]
+
+    def step(inputs, h):
+        return read(session.step([(v - b) / a for (a, b), v in zip(into, inputs)], h))
+
+    return step, read
+
+
 def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
     controller = compiled.runtime
     scenario = prepared.scenario
@@ -182,10 +201,11 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
                     controller.n_xc > 0, bool(limit), len(prepared.disturbances), prepared.substeps)
     rows, us, commands, xcs, estimates = [], [], [], [], []
     failure = None
-    values = session.get(outputs)
+    step, read = _converted(prepared, session)
+    values = read(session.get(outputs))
     steps = prepared.steps
     chunk = CHUNK if progress else max(steps, 1)
-    arguments = (session.step, controller.control, controller.state,
+    arguments = (step, controller.control, controller.state,
                  estimator.correct if estimator else None, estimator.predict if estimator else None,
                  prepared.rbar.tolist(),
                  prepared.measurement_noise.tolist() if prepared.noisy else None,

@@ -73,6 +73,9 @@ class Prepared:
     kalman: tuple | None = None   # (Ad, Bd, C, M) of the steady-state filter
     metrics: dict = field(default_factory=dict)   # the metric catalogue of this run
     units: dict = field(default_factory=dict)     # view name -> unit the FMU declares
+    # FMU variable -> (scale, offset): view value = scale * FMU value + offset (plant.mapping,
+    # or a declared unit such as deg); an input is set to (view value - offset) / scale
+    conversions: dict = field(default_factory=dict)
     key: str = field(default_factory=lambda: uuid.uuid4().hex)
     _estimator: object = field(default=None, repr=False, compare=False)
 
@@ -158,19 +161,27 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     outputs, signals, states, state_outputs, control_input, inputs, disturbance_names = view
     if problems:  # every other name is a view name: nothing more can be checked without it
         raise ConfigError(problems)
+    conversions = _conversions(description, scenario.mapping, outputs + list(inputs.values())
+                               + [control_input], fail)
     for name, value in scenario.initial.items():
         if name not in states:
             fail(f"plant.initial.{name}", f"not a state (states: {', '.join(states)})")
             continue
+        output = state_outputs[states.index(name)]
         target = scenario.mapping.initial.get(name) if scenario.mapping else None
         key = f"plant.mapping.initial.{name}" if target else f"plant.initial.{name}"
-        target = target or start_parameter(state_outputs[states.index(name)])
-        if target not in parameters:
+        if target is None and start_parameter(output) not in parameters and settable_start(variables[output]):
+            target = output  # the state takes its start value on itself (FMI's initial="exact")
+        target = target or start_parameter(output)
+        if target not in parameters and target != output:
             fail(key, f"{identifier} has no parameter {target!r} to set the start of {name}"
                  + ("" if key.startswith("plant.mapping") else
-                    "; name the parameter that does under plant.mapping.initial"))
+                    f" and its output {output!r} takes no start value; name the parameter that "
+                    "does under plant.mapping.initial"))
             continue
-        start[target] = value
+        # a start parameter in units of its own, else in those of the state it starts
+        scale, offset = _declared(description, variables[target]) or conversions.get(output, (1.0, 0.0))
+        start[target] = (value - offset) / scale
 
     tracked = scenario.reference.output or (TRACKED_OUTPUT if TRACKED_OUTPUT in signals
                                             else (states or signals)[0])
@@ -239,7 +250,8 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                         outputs, signals, states, control_input, process_inputs, process,
                         tracked, period, step, steps, unit, t, rbar, disturbance, measurement,
                         noisy, measured=measured, metrics=known,
-                        units=_units(variables, outputs, signals, control_input))
+                        units=_units(description, outputs, signals, control_input, conversions),
+                        conversions=conversions)
     if scenario.estimator:
         prepared.kalman = _kalman(prepared, state_outputs)
     return prepared
@@ -302,17 +314,74 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
     return outputs, signals, states, state_outputs, control_input, disturbances, list(disturbances)
 
 
-def _units(variables: dict, outputs, signals, control_input) -> dict[str, str]:
-    """The unit each recorded plant variable declares (on itself or its type), by its view
-    name; a variable without one is left out."""
-    def unit(variable) -> str | None:
+def _units(description, outputs, signals, control_input, conversions) -> dict[str, str]:
+    """The unit of each recorded plant variable in the view, by its view name: the one it
+    declares, or its SI base unit where it is converted from a declared unit; a variable
+    without one, or scaled by the mapping alone, is left out."""
+    variables = {v.name: v for v in description.modelVariables}
+    definitions = {u.name: u for u in description.unitDefinitions}
+
+    def unit(name) -> str | None:
+        variable = variables[name]
         declared = getattr(variable, "declaredType", None)
-        return variable.unit or (declared.unit if declared is not None else None)
+        text = variable.unit or (declared.unit if declared is not None else None)
+        if name in conversions:
+            definition = definitions.get(text)
+            if definition is None or definition.baseUnit is None or \
+                    conversions[name] != _declared(description, variable):
+                return None
+            return _si(definition.baseUnit) or None
+        return text
 
     named = dict(zip(signals, outputs))
     if control_input in variables:
         named[control_input] = control_input
-    return {name: unit(variables[target]) for name, target in named.items() if unit(variables[target])}
+    return {name: unit(target) for name, target in named.items() if unit(target)}
+
+
+def _si(base) -> str:
+    """A base unit's SI name from its exponents (rad, rad/s, kg.m2/s2)."""
+    up, down = [], []
+    for symbol in ("kg", "m", "s", "A", "K", "mol", "cd", "rad"):
+        power = int(getattr(base, symbol, 0) or 0)
+        if power:
+            (up if power > 0 else down).append(symbol + (str(abs(power)) if abs(power) != 1 else ""))
+    return ".".join(up or (["1"] if down else [])) + "".join("/" + d for d in down)
+
+
+def settable_start(variable) -> bool:
+    """Whether an importer may set the variable's start value before initialization (FMI 2.0
+    and 3.0: ``initial`` exact or approx on a variable that is not a constant)."""
+    return variable.initial in ("exact", "approx") and variable.variability != "constant"
+
+
+def _declared(description, variable) -> tuple[float, float] | None:
+    """(factor, offset) from the unit the variable declares to its SI base unit, when that
+    differs from 1 and 0 (``deg``: factor pi/180); None otherwise."""
+    declared = getattr(variable, "declaredType", None)
+    name = variable.unit or (declared.unit if declared is not None else None)
+    if not name:
+        return None
+    for unit in description.unitDefinitions:
+        if unit.name == name and unit.baseUnit is not None:
+            factor, offset = float(unit.baseUnit.factor), float(unit.baseUnit.offset)
+            if (factor, offset) != (1.0, 0.0):
+                return factor, offset
+    return None
+
+
+def _conversions(description, mapping, names, fail) -> dict[str, tuple[float, float]]:
+    """FMU variable -> (scale, offset) with view value = scale * FMU value + offset: from the
+    mapping, else from the unit the variable declares; only the variables that need one."""
+    variables = {v.name: v for v in description.modelVariables}
+    given = dict(mapping.conversions) if mapping else {}
+    found = {}
+    for name in names:
+        if name in given:
+            found[name] = given[name]
+        elif name in variables and (declared := _declared(description, variables[name])):
+            found[name] = declared
+    return found
 
 
 def state_names_of(variables: dict) -> list[str]:

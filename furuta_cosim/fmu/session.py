@@ -280,22 +280,25 @@ class PlantSession:
     def reset(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0) -> None:
         """Return to the FMU's start values, apply ``parameters`` and initialize at ``start_time``.
 
-        ``parameters`` may name any parameter or input; ``<state>_start`` sets initial states.
+        ``parameters`` may name any parameter or input, and any variable whose start value an
+        importer may set (``initial`` exact or approx); ``<state>_start`` sets initial states.
         """
         self._usable()
         lib, c = self._lib, self._c
         if self._initialized:
             self._check(lib.fmi2Reset(c), "fmi2Reset")
-        reals, integers = self._split(parameters or {})
+        reals, integers = self._split(parameters or {}, starts=True)
         self._check(lib.fmi2SetupExperiment(c, 0, 0.0, start_time, 0, 0.0), "fmi2SetupExperiment")
-        self._check(lib.fmi2EnterInitializationMode(c), "fmi2EnterInitializationMode")
         self._initialized = True
+        # before initialization: where FMI 2.0 lets an importer set every start value (a
+        # variable with initial="approx" may be set only here)
         if reals:
             vrs, values = zip(*reals)
-            self._check(lib.fmi2SetReal(c, vrs, len(vrs), values), "setting parameters")
+            self._check(lib.fmi2SetReal(c, vrs, len(vrs), values), "setting start values")
         if integers:
             vrs, values = zip(*integers)
-            self._check(lib.fmi2SetInteger(c, vrs, len(vrs), values), "setting parameters")
+            self._check(lib.fmi2SetInteger(c, vrs, len(vrs), values), "setting start values")
+        self._check(lib.fmi2EnterInitializationMode(c), "fmi2EnterInitializationMode")
         self._check(lib.fmi2ExitInitializationMode(c), "fmi2ExitInitializationMode")
         if self._interface == "ModelExchange":
             info = _FFI.new("fmi2EventInfo*")
@@ -304,13 +307,15 @@ class PlantSession:
         self.time = self._start = start_time
         self._k = 0
 
-    def _split(self, values: Mapping[str, float]):
+    def _split(self, values: Mapping[str, float], starts: bool = False):
         reals, integers = [], []
         for name, value in values.items():
             variable = self.binary.variable(name)
-            if variable.causality not in ("parameter", "input"):
-                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.causality}, "
-                               "it cannot be set")
+            start = starts and variable.initial in ("exact", "approx") and variable.variability != "constant"
+            if variable.causality not in ("parameter", "input") and not start:
+                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.causality}"
+                               + (" without a start value an importer may set" if starts else "")
+                               + ", it cannot be set")
             if variable.type == "Integer":
                 if not math.isfinite(value) or value != int(value) or not -2**31 <= value < 2**31:
                     raise FmuError(f"{self.binary.identifier}: {name} must be a whole number "

@@ -10,7 +10,7 @@ pendulum angle 0 upright. Integrated by classical RK4 with 20 substeps per doSte
 
 import math
 
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
 
 PHYSICS = {  # paper-calibrated
     "pendulum_mass": 0.1, "cart_mass": 0.01, "pendulum_inertia": 5.1e-4, "arm_inertia": 3.1e-3,
@@ -25,6 +25,10 @@ INPUTS = ("voltage", "arm_torque", "pend_torque")
 class ForeignPendulum(Fmi2Slave):
     author = "tests"
     description = "Furuta pendulum, independent pythonfmu implementation"
+    # a variant (tests/test_units.py) gives angles in degrees and takes the start of a
+    # state on the state itself, as many exporters do, instead of on a <state>_0 parameter
+    DEGREES = False
+    START_PARAMETERS = True
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -34,6 +38,10 @@ class ForeignPendulum(Fmi2Slave):
                                         variability=Fmi2Variability.tunable))
         for name in STATES:
             setattr(self, name, 0.0)
+            if not self.START_PARAMETERS:
+                self.register_variable(Real(name, causality=Fmi2Causality.output,
+                                            initial=Fmi2Initial.exact, start=0.0))
+                continue
             self.register_variable(Real(name, causality=Fmi2Causality.output))
             setattr(self, f"{name}_0", 0.0)
             self.register_variable(Real(f"{name}_0", causality=Fmi2Causality.parameter,
@@ -43,6 +51,8 @@ class ForeignPendulum(Fmi2Slave):
             self.register_variable(Real(name, causality=Fmi2Causality.input))
 
     def exit_initialization_mode(self):
+        if not self.START_PARAMETERS:
+            return
         for name in STATES:
             setattr(self, name, getattr(self, f"{name}_0"))
 
@@ -64,7 +74,8 @@ class ForeignPendulum(Fmi2Slave):
         return (w0, (d * f0 - b * f1) / det, w1, (a * f1 - b * f0) / det, di)
 
     def do_step(self, current_time, step_size):
-        x = tuple(getattr(self, n) for n in STATES)
+        scale = math.pi / 180.0 if self.DEGREES else 1.0
+        x = tuple(getattr(self, n) * (1.0 if n == "current" else scale) for n in STATES)
         h = step_size / 20
         for _ in range(20):
             k1 = self._rates(x)
@@ -73,5 +84,5 @@ class ForeignPendulum(Fmi2Slave):
             k4 = self._rates(tuple(v + h * k for v, k in zip(x, k3)))
             x = tuple(v + h / 6 * (p + 2 * q + 2 * s + t) for v, p, q, s, t in zip(x, k1, k2, k3, k4))
         for name, value in zip(STATES, x):
-            setattr(self, name, value)
+            setattr(self, name, value / (1.0 if name == "current" else scale))
         return True

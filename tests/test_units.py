@@ -1,0 +1,152 @@
+"""Units and start values in a plant mapping: the foreign pendulum with its angles in degrees
+and no start parameters (tests/foreign/pendulum_fmu.py with DEGREES set, START_PARAMETERS
+not), converted by an explicit scale
+in the mapping or by the unit its model description declares, runs paper-step as the same
+pendulum in radians does."""
+
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furuta_cosim.cosim import evaluate, prepare
+from furuta_cosim.fmu.session import PlantSession
+from furuta_cosim.scenario import load_scenario
+
+from conftest import run_cli
+
+DEG = 0.017453292519943295  # rad per degree
+
+SCALED = """\
+plant:
+  fmu: DegreePendulum.fmu
+  initial: {theta1: 0.1}
+  control_input: voltage
+  mapping:
+    states:
+      theta0: {variable: arm_angle, scale: %(deg)r}
+      dtheta0: {variable: arm_rate, scale: %(deg)r}
+      theta1: {variable: pend_angle, scale: %(deg)r}
+      dtheta1: {variable: pend_rate, scale: %(deg)r}
+      i: current
+    disturbances: {tau0: arm_torque, tau1: pend_torque}
+""" % {"deg": DEG}
+
+DECLARED = """\
+plant:
+  fmu: DeclaredPendulum.fmu
+  initial: {theta1: 0.1}
+  control_input: voltage
+  mapping:
+    states: {theta0: arm_angle, dtheta0: arm_rate, theta1: pend_angle, dtheta1: pend_rate, i: current}
+    disturbances: {tau0: arm_torque, tau1: pend_torque}
+"""
+
+UNITS = """<UnitDefinitions>
+<Unit name="deg"><BaseUnit rad="1" factor="0.017453292519943295"/></Unit>
+<Unit name="deg/s"><BaseUnit rad="1" s="-1" factor="0.017453292519943295"/></Unit>
+</UnitDefinitions>
+"""
+
+
+def declare_units(source: Path, target: Path) -> None:
+    """``source`` with deg and deg/s declared on its angles, as a Modelica tool exports them."""
+    with zipfile.ZipFile(source) as archive:
+        files = {name: archive.read(name) for name in archive.namelist()}
+    text = files["modelDescription.xml"].decode()
+    text = re.sub(r"(</CoSimulation>|<CoSimulation[^>]*/>)", lambda m: m.group(1) + "\n" + UNITS, text, count=1)
+    for name, unit in (("arm_angle", "deg"), ("pend_angle", "deg"), ("arm_rate", "deg/s"), ("pend_rate", "deg/s")):
+        text, count = re.subn(rf'(<ScalarVariable name="{name}"[^>]*>\s*<Real)', rf'\1 unit="{unit}"', text)
+        assert count == 1, name
+    files["modelDescription.xml"] = text.encode()
+    with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in files.items():
+            archive.writestr(name, data)
+
+
+@pytest.fixture(scope="module")
+def degrees(tmp_path_factory, foreign_fmu):
+    folder = tmp_path_factory.mktemp("degrees")
+    # one self-contained script: pythonfmu finds the slave class again only in its own module
+    text = (Path(__file__).parent / "foreign" / "pendulum_fmu.py").read_text()
+    variant = (text.replace("class ForeignPendulum(", "class DegreePendulum(")
+               .replace("DEGREES = False", "DEGREES = True")
+               .replace("START_PARAMETERS = True", "START_PARAMETERS = False"))
+    assert "DEGREES = True" in variant and "START_PARAMETERS = False" in variant
+    script = folder / "degree_pendulum_fmu.py"
+    script.write_text(variant)
+    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(script), "-d", str(folder)],
+                   check=True, capture_output=True)
+    declare_units(folder / "DegreePendulum.fmu", folder / "DeclaredPendulum.fmu")
+    shutil.copy(foreign_fmu, folder / foreign_fmu.name)
+    text = load_scenario("paper-step").path.read_text()
+    plant = text[text.index("plant:"):text.index("timing:")]
+    for name, block in (("scaled", SCALED), ("declared", DECLARED)):
+        (folder / f"paper-step-{name}.yaml").write_text(text.replace(plant, block))
+    radians = block.replace("DeclaredPendulum", "ForeignPendulum") + "    initial: {theta1: pend_angle_0}\n"
+    (folder / "paper-step-radians.yaml").write_text(text.replace(plant, radians))
+    return folder
+
+
+def run(path):
+    prepared = prepare(load_scenario(path))
+    with PlantSession.open(prepared.fmu) as session:
+        return prepared, evaluate(prepared, session, "lqr-paper")
+
+
+@pytest.mark.parametrize("name", ["scaled", "declared"])
+def test_the_degree_pendulum_runs_paper_step_as_the_radian_one(degrees, name):
+    _, reference = run(degrees / "paper-step-radians.yaml")
+    prepared, result = run(degrees / f"paper-step-{name}.yaml")
+    # the start of theta1 is set on the state itself, in degrees
+    assert prepared.start == {"pend_angle": pytest.approx(0.1 / DEG, rel=1e-15)}
+    assert result.passed and len(result.trace.t) == len(reference.trace.t) == 5000
+    assert result.trace["theta1"][0] == pytest.approx(0.1, rel=1e-14)
+    for signal in ("theta0", "dtheta0", "theta1", "dtheta1", "i"):
+        assert np.max(np.abs(result.trace[signal] - reference.trace[signal])) <= 1e-9, signal
+    assert np.max(np.abs(result.trace["theta0"])) > 1e-3  # the arm moved
+    assert result.metrics["theta1.SettlingTime"] == pytest.approx(reference.metrics["theta1.SettlingTime"], abs=1e-3)
+
+
+def test_declared_units_give_the_view_its_si_units(degrees):
+    prepared, _ = run(degrees / "paper-step-declared.yaml")
+    assert prepared.conversions["pend_rate"] == (DEG, 0.0)
+    assert prepared.units["theta1"] == "rad" and prepared.units["dtheta1"] == "rad/s"
+    scaled = prepare(load_scenario(degrees / "paper-step-scaled.yaml"))
+    assert "theta1" not in scaled.units  # a scale alone says nothing of the unit
+
+
+def test_without_conversion_the_degree_pendulum_is_another_experiment(degrees):
+    """The check has teeth: read as radians, the same FMU falls over."""
+    path = degrees / "paper-step-plain.yaml"
+    text = (degrees / "paper-step-declared.yaml").read_text()
+    path.write_text(text.replace("DeclaredPendulum", "DegreePendulum"))
+    _, result = run(path)
+    _, reference = run(degrees / "paper-step-radians.yaml")
+    n = min(len(result.trace.t), len(reference.trace.t))
+    assert np.max(np.abs(result.trace["theta1"][:n] - reference.trace["theta1"][:n])) > 1e-2
+
+
+def test_a_zero_scale_is_one_line(degrees, tmp_path, capsys):
+    path = degrees / "paper-step-zero.yaml"
+    path.write_text((degrees / "paper-step-scaled.yaml").read_text().replace(
+        "{variable: pend_angle, scale: %r}" % DEG, "{variable: pend_angle, scale: 0}"))
+    code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path))
+    assert code == 2 and err.strip().splitlines() == [
+        f"error: {path}: plant.mapping.states.theta1.scale: must not be 0 "
+        "(the view's value is scale * FMU value + offset)"]
+
+
+def test_a_state_without_a_start_is_named(degrees, tmp_path, capsys):
+    path = degrees / "paper-step-nostart.yaml"
+    path.write_text((degrees / "paper-step-radians.yaml").read_text().replace(
+        "    initial: {theta1: pend_angle_0}\n", ""))
+    code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path))
+    assert code == 2
+    assert ("plant.initial.theta1: ForeignPendulum has no parameter 'pend_angle_start' to set the start "
+            "of theta1 and its output 'pend_angle' takes no start value") in err
