@@ -16,6 +16,18 @@ from furuta_cosim.cli import main  # noqa: E402
 from furuta_cosim.fmu.exporter import build_fmu  # noqa: E402
 
 STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
+FOREIGN = Path(__file__).parent / "foreign"
+
+
+def build_foreign(tool: str, script: Path, folder: Path, *project_files: Path) -> None:
+    """Build an FMU with another exporter (``pythonfmu`` or ``pythonfmu3``) into ``folder``;
+    a failed build shows the exporter's own output."""
+    # the exporter imports the script, which imports its project files
+    path = os.pathsep.join([str(Path(f).parent) for f in project_files] + [os.environ.get("PYTHONPATH", "")])
+    done = subprocess.run([sys.executable, "-m", tool, "build", "-f", str(script), *map(str, project_files),
+                           "-d", str(folder)], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": path})
+    assert done.returncode == 0, done.stdout + done.stderr
 
 
 def run_cli(capsys, *argv):
@@ -44,7 +56,5 @@ def foreign_fmu(tmp_path_factory):
     """The pendulum built by another exporter (pythonfmu) from tests/foreign/pendulum_fmu.py,
     written independently of fmu_src/furuta, under other variable names."""
     folder = tmp_path_factory.mktemp("foreign-fmu")
-    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
-                    str(Path(__file__).parent / "foreign" / "pendulum_fmu.py"), "-d", str(folder)],
-                   check=True, capture_output=True)
+    build_foreign("pythonfmu", FOREIGN / "pendulum_fmu.py", folder, FOREIGN / "pendulum_physics.py")
     return folder / "ForeignPendulum.fmu"

@@ -14,7 +14,7 @@ from furuta_cosim.cosim import evaluate, prepare
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
 
-from conftest import run_cli
+from conftest import FOREIGN, build_foreign, run_cli
 
 MAPPING = """\
 plant:
@@ -110,14 +110,8 @@ def test_our_own_fmu_given_with_fmu_needs_no_mapping(furuta_fmu, tmp_path, capsy
 def nan_plant(tmp_path_factory, foreign):
     """paper-step on a pythonfmu plant whose outputs turn NaN at 14 ms, mapped like the
     foreign pendulum."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
     folder = tmp_path_factory.mktemp("nan-plant")
-    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
-                    str(Path(__file__).parent / "foreign" / "nan_fmu.py"), "-d", str(folder)],
-                   check=True, capture_output=True)
+    build_foreign("pythonfmu", FOREIGN / "nan_fmu.py", folder)
     text = (foreign / "paper-step-mapped.yaml").read_text()
     (folder / "paper-step-nan.yaml").write_text(text.replace("ForeignPendulum.fmu", "NanPlant.fmu"))
     return folder

@@ -6,8 +6,6 @@ pendulum in radians does."""
 
 import re
 import shutil
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -18,7 +16,7 @@ from furuta_cosim.cosim import evaluate, prepare
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
 
-from conftest import run_cli
+from conftest import FOREIGN, build_foreign, run_cli
 
 DEG = 0.017453292519943295  # rad per degree
 
@@ -73,15 +71,14 @@ def declare_units(source: Path, target: Path) -> None:
 def degrees(tmp_path_factory, foreign_fmu):
     folder = tmp_path_factory.mktemp("degrees")
     # one self-contained script: pythonfmu finds the slave class again only in its own module
-    text = (Path(__file__).parent / "foreign" / "pendulum_fmu.py").read_text()
+    text = (FOREIGN / "pendulum_fmu.py").read_text()
     variant = (text.replace("class ForeignPendulum(", "class DegreePendulum(")
                .replace("DEGREES = False", "DEGREES = True")
                .replace("START_PARAMETERS = True", "START_PARAMETERS = False"))
     assert "DEGREES = True" in variant and "START_PARAMETERS = False" in variant
     script = folder / "degree_pendulum_fmu.py"
     script.write_text(variant)
-    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(script), "-d", str(folder)],
-                   check=True, capture_output=True)
+    build_foreign("pythonfmu", script, folder, FOREIGN / "pendulum_physics.py")
     declare_units(folder / "DegreePendulum.fmu", folder / "DeclaredPendulum.fmu")
     shutil.copy(foreign_fmu, folder / foreign_fmu.name)
     text = load_scenario("paper-step").path.read_text()
