@@ -137,9 +137,12 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
 
     plant, fmu_path = _plant(scenario, fmu)
     description = model_description(fmu_path)
-    if description.fmiVersion != "2.0" or description.coSimulation is None:
-        raise FmuError(f"{fmu_path}: not an FMI 2.0 co-simulation FMU (FMI {description.fmiVersion}"
-                       f"{', co-simulation' if description.coSimulation else ', model exchange only'})")
+    if description.fmiVersion not in ("2.0", "3.0") or description.coSimulation is None:
+        interfaces = [name for name, part in (("model exchange", description.modelExchange),
+                                              ("scheduled execution", description.scheduledExecution))
+                      if part is not None]
+        raise FmuError(f"{fmu_path}: not an FMI 2.0 or 3.0 co-simulation FMU (FMI {description.fmiVersion}, "
+                       f"{' and '.join(interfaces) or 'no interface'}{' only' if interfaces else ''})")
     variables = {v.name: v for v in description.modelVariables}
     identifier = description.coSimulation.modelIdentifier
     parameters = {n for n, v in variables.items() if v.causality == "parameter"}
@@ -150,7 +153,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
         if name not in parameters:
             fail(f"plant.overrides.{name}", f"not a parameter of {plant.name if plant else identifier} "
                  f"(parameters: {', '.join(sorted(parameters))})")
-        elif variables[name].type == "Integer":
+        elif variables[name].type in ("Integer", "Int32"):
             low, high = (float(b) if b is not None else None for b in (variables[name].min, variables[name].max))
             if value != int(value) or (low is not None and value < low) or (high is not None and value > high):
                 fail(f"plant.overrides.{name}", f"expected a whole number in [{low:g}, {high:g}], got {value:g}"
@@ -278,7 +281,8 @@ def _plant(scenario: Scenario, fmu: str | Path | None) -> tuple[PlantSet | None,
 def _view(scenario: Scenario, variables: dict, identifier: str, fail):
     """The FMU's outputs and inputs seen as the controller sees them (see the module doc)."""
     mapping = scenario.mapping
-    reals = {n for n, v in variables.items() if v.type == "Real"}
+    reals = {n for n, v in variables.items() if is_real(v)}
+    kind = "Float64" if any(v.type == "Float64" for v in variables.values()) else "Real"
     outputs = [n for n, v in variables.items() if v.causality == "output" and n in reals]
     inputs = [n for n, v in variables.items() if v.causality == "input" and n in reals]
     if mapping and mapping.states:
@@ -286,7 +290,7 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
         state_outputs = []
         for name, target in mapping.states.items():
             if target not in outputs:
-                fail(f"plant.mapping.states.{name}", f"{identifier} has no Real output {target!r} "
+                fail(f"plant.mapping.states.{name}", f"{identifier} has no {kind} output {target!r} "
                      f"(outputs: {', '.join(outputs)})")
             state_outputs.append(target)
     else:
@@ -302,7 +306,7 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
 
     control_input = scenario.control_input or (inputs[0] if inputs else "")
     if control_input not in inputs:
-        fail("plant.control_input", f"not a Real input of {identifier} (inputs: {', '.join(inputs) or 'none'})")
+        fail("plant.control_input", f"not a {kind} input of {identifier} (inputs: {', '.join(inputs) or 'none'})")
     named = dict(mapping.disturbances) if mapping else {}
     for name, target in named.items():
         if target not in inputs or target == control_input:
@@ -347,6 +351,11 @@ def _si(base) -> str:
         if power:
             (up if power > 0 else down).append(symbol + (str(abs(power)) if abs(power) != 1 else ""))
     return ".".join(up or (["1"] if down else [])) + "".join("/" + d for d in down)
+
+
+def is_real(variable) -> bool:
+    """A scalar floating-point variable: FMI 2.0's Real, FMI 3.0's Float64 (not an array)."""
+    return variable.type in ("Real", "Float64") and not getattr(variable, "dimensions", None)
 
 
 def settable_start(variable) -> bool:

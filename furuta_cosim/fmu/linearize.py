@@ -65,7 +65,7 @@ def linearize(fmu: str | Path, parameters: Mapping[str, float] | None = None,
     """
     with FmuBinary(fmu) as binary:
         md = binary.model_description
-        all_inputs = [v.name for v in md.modelVariables if v.causality == "input" and v.type == "Real"]
+        all_inputs = [v.name for v in md.modelVariables if v.causality == "input" and v.type in ("Real", "Float64")]
         input_names = list(inputs) if inputs else all_inputs
         u0 = np.array([float((inputs or {}).get(n, 0.0)) for n in input_names])
         output_names = list(outputs) if outputs else [

@@ -72,6 +72,29 @@ typedef struct {
     const fmi2ValueReference* out_vr; size_t n_out; double* out;
 } StepCall;
 int step_io(const StepCall*, double, double);
+typedef void* fmi3Instance;
+typedef void (*fmi3LogMessageCallback)(void*, int, const char*, const char*);
+fmi3Instance fmi3InstantiateCoSimulation(const char*, const char*, const char*, bool, bool, bool,
+    bool, const unsigned int*, size_t, void*, fmi3LogMessageCallback, void*);
+fmi3Instance fmi3InstantiateModelExchange(const char*, const char*, const char*, bool, bool, void*,
+    fmi3LogMessageCallback);
+void fmi3FreeInstance(fmi3Instance);
+int fmi3EnterInitializationMode(fmi3Instance, bool, double, double, bool, double);
+int fmi3ExitInitializationMode(fmi3Instance);
+int fmi3Terminate(fmi3Instance);
+int fmi3Reset(fmi3Instance);
+int fmi3GetFloat64(fmi3Instance, const unsigned int*, size_t, double*, size_t);
+int fmi3SetFloat64(fmi3Instance, const unsigned int*, size_t, const double*, size_t);
+int fmi3GetInt32(fmi3Instance, const unsigned int*, size_t, int*, size_t);
+int fmi3SetInt32(fmi3Instance, const unsigned int*, size_t, const int*, size_t);
+int fmi3DoStep(fmi3Instance, double, double, bool, bool*, bool*, bool*, double*);
+int fmi3GetFMUState(fmi3Instance, void**);
+int fmi3SetFMUState(fmi3Instance, void*);
+int fmi3FreeFMUState(fmi3Instance, void**);
+int fmi3UpdateDiscreteStates(fmi3Instance, bool*, bool*, bool*, bool*, bool*, double*);
+int fmi3EnterContinuousTimeMode(fmi3Instance);
+int fmi3SetContinuousStates(fmi3Instance, const double*, size_t);
+int fmi3GetContinuousStateDerivatives(fmi3Instance, double*, size_t);
 void* calloc(size_t, size_t);
 void free(void*);
 """)
@@ -113,7 +136,7 @@ def model_description(fmu: str | Path) -> ModelDescription:
 def _extract(fmu: Path) -> Path:
     """Unzip what an importer needs (the platform binary and resources) into a new folder."""
     folder = temporary_folder("fmu")
-    wanted = (f"binaries/{fmpy.platform}/", "resources/")
+    wanted = (f"binaries/{fmpy.platform}/", f"binaries/{fmpy.platform_tuple}/", "resources/")
     try:
         with zipfile.ZipFile(fmu) as archive:
             archive.extractall(folder, [n for n in archive.namelist() if n.startswith(wanted)])
@@ -124,10 +147,17 @@ def _extract(fmu: Path) -> Path:
 
 
 def state_names(model_description: ModelDescription) -> list[str]:
-    """The plant's states: the outputs ``x`` that have a start parameter ``x_start``."""
+    """The plant's states: this project's convention (the outputs ``x`` that have a start
+    parameter ``x_start``), else the continuous states the model structure declares (the
+    variables its derivatives name), in the order of the FMU's state vector."""
     names = {v.name for v in model_description.modelVariables}
-    return [v.name for v in model_description.modelVariables
-            if v.causality == "output" and start_parameter(v.name) in names]
+    marked = [v.name for v in model_description.modelVariables
+              if v.causality == "output" and start_parameter(v.name) in names]
+    declared = [d.variable.derivative.name for d in model_description.derivatives
+                if d.variable.derivative is not None]
+    if marked and (not declared or sorted(marked) == sorted(declared)):
+        return declared or marked
+    return declared
 
 
 class FmuBinary:
@@ -140,13 +170,20 @@ class FmuBinary:
         if not self.path.is_file():
             raise FmuError(f"{self.path}: no such FMU")
         self.model_description = md = model_description(self.path)
-        interface = md.coSimulation or md.modelExchange
+        if md.fmiVersion not in ("2.0", "3.0"):
+            raise FmuError(f"{self.path}: FMI {md.fmiVersion} is not supported (FMI 2.0 and 3.0 are)")
+        interface = md.coSimulation or md.modelExchange or md.scheduledExecution
+        if interface is None:
+            raise FmuError(f"{self.path}: declares no interface (co-simulation, model exchange "
+                           "or scheduled execution)")
         self.identifier = interface.modelIdentifier
+        self.version = md.fmiVersion
         self.directory = _extract(self.path)
-        library = self.directory / "binaries" / fmpy.platform / f"{self.identifier}{fmpy.sharedLibraryExtension}"
+        platform = fmpy.platform if md.fmiVersion == "2.0" else fmpy.platform_tuple
+        library = self.directory / "binaries" / platform / f"{self.identifier}{fmpy.sharedLibraryExtension}"
         if not library.is_file():
             shutil.rmtree(self.directory, ignore_errors=True)
-            raise FmuError(f"{self.path}: no binary for {fmpy.platform} "
+            raise FmuError(f"{self.path}: no binary for {platform} "
                            f"(rebuild it from sources/ with 'fmpy compile')")
         try:
             self.lib = _FFI.dlopen(str(library))
@@ -198,6 +235,13 @@ class PlantSession:
     interface : {"CoSimulation", "ModelExchange"}
         Model exchange serves linearization (states in, derivatives out).
     """
+
+    REAL, INTEGER = "Real", "Integer"  # the FMI types read and written as double and int
+
+    def __new__(cls, binary: FmuBinary, *args, **kwargs):
+        if cls is PlantSession and binary.version == "3.0":
+            cls = PlantSession3
+        return super().__new__(cls)
 
     def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
         self.binary = binary
@@ -316,15 +360,18 @@ class PlantSession:
                 raise FmuError(f"{self.binary.identifier}: {name} is a {variable.causality}"
                                + (" without a start value an importer may set" if starts else "")
                                + ", it cannot be set")
-            if variable.type == "Integer":
+            if variable.type == self.INTEGER:
                 if not math.isfinite(value) or value != int(value) or not -2**31 <= value < 2**31:
                     raise FmuError(f"{self.binary.identifier}: {name} must be a whole number "
                                    f"(32 bits), got {value}")
                 integers.append((variable.valueReference, int(value)))
-            else:
+            elif variable.type == self.REAL:
                 if not math.isfinite(value):
                     raise FmuError(f"{self.binary.identifier}: {name} = {value} is not finite")
                 reals.append((variable.valueReference, float(value)))
+            else:
+                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.type}; only "
+                               f"{self.REAL} and {self.INTEGER} variables can be set")
         return reals, integers
 
     def set_io(self, inputs: Sequence[str] = (), outputs: Sequence[str] = ()) -> None:
@@ -346,8 +393,8 @@ class PlantSession:
 
     def _real_vr(self, name: str, causality: str | None) -> int:
         variable = self.binary.variable(name)
-        if variable.type != "Real" or (causality and variable.causality != causality):
-            raise FmuError(f"{self.binary.identifier}: {name} is not a Real {causality or 'variable'}")
+        if variable.type != self.REAL or (causality and variable.causality != causality):
+            raise FmuError(f"{self.binary.identifier}: {name} is not a {self.REAL} {causality or 'variable'}")
         return variable.valueReference
 
     # -- the hot path ----------------------------------------------------------------------
@@ -394,7 +441,10 @@ class PlantSession:
         values = []
         for name in names:
             variable = self.binary.variable(name)
-            if variable.type == "Integer":
+            if variable.type not in (self.REAL, self.INTEGER):
+                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.type}; only "
+                               f"{self.REAL} and {self.INTEGER} variables are read")
+            if variable.type == self.INTEGER:
                 buffer = _FFI.new("int[1]")
                 self._check(self._lib.fmi2GetInteger(self._c, [variable.valueReference], 1, buffer),
                             f"reading {name}")
@@ -433,6 +483,9 @@ class PlantSession:
         self._check(self._lib.fmi2GetFMUstate(self._c, state), "fmi2GetFMUstate")
         return _Snapshot(self, state, self.time)
 
+    def _free_state(self, pointer) -> None:
+        self._lib.fmi2FreeFMUstate(self._c, pointer)
+
     def restore_state(self, snapshot: "_Snapshot") -> None:
         self._usable()
         self._check(self._lib.fmi2SetFMUstate(self._c, snapshot.pointer[0]), "fmi2SetFMUstate")
@@ -457,10 +510,184 @@ class PlantSession:
         self.close()
 
 
+class PlantSession3(PlantSession):
+    """The same session on an FMI 3.0 FMU (Float64 and Int32 variables): ``PlantSession(binary)``
+    gives one when the binary is FMI 3.0. Each step is three foreign calls (set, doStep, get):
+    the one-call helper knows the FMI 2.0 signatures only."""
+
+    REAL, INTEGER = "Float64", "Int32"
+
+    def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
+        self.binary = binary
+        self._owns_binary = False
+        self._lib = binary.lib
+        self._messages: list[str] = []
+        self._interface = interface
+        md = binary.model_description
+        if interface == "ModelExchange" and md.modelExchange is None:
+            raise FmuError(f"{binary.identifier} has no model exchange interface")
+        if interface == "CoSimulation" and md.coSimulation is None:
+            raise FmuError(f"{binary.identifier} has no co-simulation interface"
+                           + (" (scheduled execution, with clocks, is not supported)"
+                              if md.scheduledExecution else ""))
+        self._logger = _FFI.callback("void(void*, int, const char*, const char*)", self._log3)
+        self._name = _FFI.new("char[]", name.encode())
+        self._token = _FFI.new("char[]", (md.instantiationToken or "").encode())
+        # FMI 3.0 gives the resources as a native path that ends with a separator
+        self._resources = _FFI.new("char[]", (str(binary.directory / "resources") + "/").encode())
+        if interface == "ModelExchange":
+            self._c = self._lib.fmi3InstantiateModelExchange(self._name, self._token, self._resources,
+                                                             False, False, _FFI.NULL, self._logger)
+        else:
+            self._c = self._lib.fmi3InstantiateCoSimulation(
+                self._name, self._token, self._resources, False, False, False, False, _FFI.NULL, 0,
+                _FFI.NULL, self._logger, _FFI.NULL)
+        if self._c == _FFI.NULL:
+            raise FmuError(f"{binary.identifier}: fmi3Instantiate{interface} failed: {self._drain()}")
+        self._step_io = self._step_three_calls
+        self._nx = len(binary.states)
+        self._x = _FFI.new("double[]", max(self._nx, 1))
+        self._dx = _FFI.new("double[]", max(self._nx, 1))
+        self._flags = _FFI.new("bool[6]")
+        self._last = _FFI.new("double*")
+        self.set_io()
+        self.time = 0.0
+        self._start = 0.0
+        self._k = 0
+        self._h = 0.0
+        self._initialized = False
+
+    def _log3(self, env, status, category, message) -> None:
+        self._messages.append(_FFI.string(message).decode(errors="replace"))
+
+    def reset(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0) -> None:
+        self._usable()
+        lib, c = self._lib, self._c
+        if self._initialized:
+            self._check(lib.fmi3Reset(c), "fmi3Reset")
+        reals, integers = self._split(parameters or {}, starts=True)
+        self._initialized = True
+        if reals:
+            vrs, values = zip(*reals)
+            self._check(lib.fmi3SetFloat64(c, vrs, len(vrs), values, len(values)), "setting start values")
+        if integers:
+            vrs, values = zip(*integers)
+            self._check(lib.fmi3SetInt32(c, vrs, len(vrs), values, len(values)), "setting start values")
+        self._check(lib.fmi3EnterInitializationMode(c, False, 0.0, start_time, False, 0.0),
+                    "fmi3EnterInitializationMode")
+        self._check(lib.fmi3ExitInitializationMode(c), "fmi3ExitInitializationMode")
+        if self._interface == "ModelExchange":
+            # event mode: iterate the discrete states to a fixed point, then continuous time
+            flags, when = self._flags, _FFI.new("double*")
+            for _ in range(100):
+                self._check(lib.fmi3UpdateDiscreteStates(c, flags, flags + 1, flags + 2, flags + 3,
+                                                         flags + 4, when), "fmi3UpdateDiscreteStates")
+                if not flags[0]:
+                    break
+            self._check(lib.fmi3EnterContinuousTimeMode(c), "fmi3EnterContinuousTimeMode")
+        self.time = self._start = start_time
+        self._k = 0
+
+    def set_io(self, inputs: Sequence[str] = (), outputs: Sequence[str] = ()) -> None:
+        self._usable()
+        self.inputs, self.outputs = list(inputs), list(outputs)
+        self._n_in, self._n_out = len(self.inputs), len(self.outputs)
+        self._in_vr = _FFI.new("unsigned int[]", [self._real_vr(n, "input") for n in inputs] or [0])
+        self._out_vr = _FFI.new("unsigned int[]", [self._real_vr(n, None) for n in outputs] or [0])
+        self._in = _FFI.new("double[]", max(self._n_in, 1))
+        self._out = _FFI.new("double[]", max(self._n_out, 1))
+        self._call = None
+
+    def _step_three_calls(self, call, t: float, h: float) -> int:
+        lib, c = self._lib, self._c
+        if c is None:
+            self._usable()
+        if self._n_in and (status := lib.fmi3SetFloat64(c, self._in_vr, self._n_in, self._in, self._n_in)) >= 2:
+            return 8 + status
+        flags = self._flags
+        if (status := lib.fmi3DoStep(c, t, h, True, flags, flags + 1, flags + 2, self._last)) >= 2:
+            return 16 + status
+        if flags[1]:
+            self._messages.append(f"the FMU asked to end the simulation at t = {self._last[0]:.9g}")
+            return 16 + 3
+        if flags[2]:
+            self._messages.append(f"the step returned early at t = {self._last[0]:.9g}")
+            return 16 + 3
+        if self._n_out and (status := lib.fmi3GetFloat64(c, self._out_vr, self._n_out, self._out, self._n_out)) >= 2:
+            return 24 + status
+        return 0
+
+    def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
+        which, status = divmod(failed, 8)
+        what = {1: f"setting {', '.join(self.inputs)} = {list(inputs)}",
+                2: f"fmi3DoStep at t = {self.time:.9g}", 3: "reading the outputs"}[which]
+        self._check(status, what)
+
+    def get(self, names: Iterable[str]) -> list[float]:
+        self._usable()
+        values = []
+        for name in names:
+            variable = self.binary.variable(name)
+            if variable.type == self.INTEGER:
+                buffer = _FFI.new("int[1]")
+                self._check(self._lib.fmi3GetInt32(self._c, [variable.valueReference], 1, buffer, 1),
+                            f"reading {name}")
+            elif variable.type == self.REAL:
+                buffer = _FFI.new("double[1]")
+                self._check(self._lib.fmi3GetFloat64(self._c, [variable.valueReference], 1, buffer, 1),
+                            f"reading {name}")
+            else:
+                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.type}; only "
+                               f"{self.REAL} and {self.INTEGER} variables are read")
+            values.append(buffer[0])
+        return values
+
+    def set(self, values: Mapping[str, float]) -> None:
+        self._usable()
+        reals, integers = self._split(values)
+        if integers:
+            raise FmuError(f"{self.binary.identifier}: integers are parameters, set them in reset()")
+        if reals:
+            vrs, numbers = zip(*reals)
+            self._check(self._lib.fmi3SetFloat64(self._c, vrs, len(vrs), numbers, len(numbers)),
+                        "fmi3SetFloat64")
+
+    def derivatives(self, x: Sequence[float]) -> list[float]:
+        self._usable()
+        self._x[0:self._nx] = x
+        self._check(self._lib.fmi3SetContinuousStates(self._c, self._x, self._nx), "fmi3SetContinuousStates")
+        self._check(self._lib.fmi3GetContinuousStateDerivatives(self._c, self._dx, self._nx),
+                    "fmi3GetContinuousStateDerivatives")
+        return _FFI.unpack(self._dx, self._nx)
+
+    def save_state(self):
+        self._usable()
+        state = _FFI.new("void**")
+        self._check(self._lib.fmi3GetFMUState(self._c, state), "fmi3GetFMUState")
+        return _Snapshot(self, state, self.time)
+
+    def _free_state(self, pointer) -> None:
+        self._lib.fmi3FreeFMUState(self._c, pointer)
+
+    def restore_state(self, snapshot: "_Snapshot") -> None:
+        self._usable()
+        self._check(self._lib.fmi3SetFMUState(self._c, snapshot.pointer[0]), "fmi3SetFMUState")
+        self.time, self._start, self._k = snapshot.time, snapshot.time, 0
+
+    def close(self) -> None:
+        if self._c is not None:
+            if self._initialized:
+                self._lib.fmi3Terminate(self._c)
+            self._lib.fmi3FreeInstance(self._c)
+            self._c = None
+        if self._owns_binary:
+            self.binary.close()
+
+
 class _Snapshot:
     def __init__(self, session: PlantSession, pointer, time: float):
         self.session, self.pointer, self.time = session, pointer, time
 
     def __del__(self):
         if self.session._c is not None and self.pointer[0] != _FFI.NULL:
-            self.session._lib.fmi2FreeFMUstate(self.session._c, self.pointer)
+            self.session._free_state(self.pointer)

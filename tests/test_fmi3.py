@@ -1,0 +1,112 @@
+"""FMI 3.0 plants from another exporter: the foreign pendulum built by pythonfmu3
+(tests/foreign/pendulum3_fmu.py: co-simulation and model exchange, Float64 variables, the
+states' start values on the states themselves) runs the scenarios, regress, simulate and tune
+as the same pendulum exported for FMI 2.0 by pythonfmu does."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from furuta_cosim.cosim import evaluate, prepare
+from furuta_cosim.fmu.session import PlantSession, PlantSession3
+from furuta_cosim.regression import regress
+from furuta_cosim.scenario import load_scenario
+
+from conftest import FOREIGN, build_foreign, run_cli
+
+STATES = "{theta0: arm_angle, dtheta0: arm_rate, theta1: pend_angle, dtheta1: pend_rate, i: current}"
+PLANT = """\
+plant:
+  fmu: %s
+  initial: {theta1: 0.1}
+  control_input: voltage
+  mapping:
+    states: %s
+    disturbances: {tau0: arm_torque, tau1: pend_torque}
+%s"""
+
+
+@pytest.fixture(scope="module")
+def fmi3(tmp_path_factory, foreign_fmu):
+    """A folder with ForeignPendulum3.fmu, ForeignPendulum.fmu (FMI 2.0) and paper-step mapped
+    onto each."""
+    folder = tmp_path_factory.mktemp("fmi3")
+    build_foreign("pythonfmu3", FOREIGN / "pendulum3_fmu.py", folder, FOREIGN / "pendulum_physics.py")
+    shutil.copy(foreign_fmu, folder / foreign_fmu.name)
+    text = load_scenario("paper-step").path.read_text()
+    plant = text[text.index("plant:"):text.index("timing:")]
+    (folder / "step3.yaml").write_text(text.replace(plant, PLANT % ("ForeignPendulum3.fmu", STATES, "")))
+    (folder / "step2.yaml").write_text(text.replace(plant, PLANT % (
+        "ForeignPendulum.fmu", STATES, "    initial: {theta1: pend_angle_0}\n")))
+    return folder
+
+
+def run(path):
+    prepared = prepare(load_scenario(path))
+    with PlantSession.open(prepared.fmu) as session:
+        return prepared, session, evaluate(prepared, session, "lqr-paper")
+
+
+def test_the_fmi3_pendulum_runs_paper_step_as_its_fmi2_twin(fmi3):
+    prepared, session, result = run(fmi3 / "step3.yaml")
+    _, _, twin = run(fmi3 / "step2.yaml")
+    assert isinstance(session, PlantSession3)
+    assert prepared.start == {"pend_angle": 0.1}  # on the state itself: it has no start parameter
+    assert result.passed and len(result.trace.t) == 5000
+    assert result.trace["theta1"][0] == 0.1 and np.max(np.abs(result.trace["theta0"])) > 1e-3
+    for name in ("theta0", "dtheta0", "theta1", "dtheta1", "i"):
+        assert np.max(np.abs(result.trace[name] - twin.trace[name])) <= 1e-12, name
+    assert prepared.units["theta1"] == "rad" and prepared.units["dtheta1"] == "rad/s"
+
+
+def test_simulate_and_regress_take_the_fmi3_plant(fmi3, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "simulate", str(fmi3 / "step3.yaml"), "--controller", "lqr-paper",
+                             "-o", str(tmp_path / "run"), "--json")
+    assert code == 0, err
+    assert json.loads(out)["passed"]
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(f"control_input: voltage\nstates: {STATES}\n"
+                       "disturbances: {tau0: arm_torque, tau1: pend_torque}\n")
+    report = regress(["paper-step"], fmu=fmi3 / "ForeignPendulum3.fmu", mapping=mapping, workers=1)
+    assert [c.status for c in report.cases] == ["pass", "pass"], [c.lines() for c in report.cases]
+
+
+def test_tune_takes_the_fmi3_plant(fmi3, tmp_path, capsys):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(f"""\
+controller: {{n_xc: 0, time: continuous, period: 0.002, model: paper-printed}}
+parameters:
+  Dc: {{lqr: [-2, 3], R: 10}}
+objective:
+  type: scenarios
+  scenarios: [{fmi3 / 'step3.yaml'}]
+  terms: [{{metric: error.ISE}}]
+constraints: {{requirements: false}}
+optimizer: {{method: random, n_calls: 4, seed: 1, batch: 1}}
+""")
+    code, out, err = run_cli(capsys, "tune", str(spec), "-o", str(tmp_path / "run"), "--workers", "1")
+    assert code == 0, err
+    lines = [json.loads(line) for line in (tmp_path / "run" / "history.jsonl").read_text().splitlines()]
+    assert len(lines) == 4 and any(line.get("feasible") for line in lines)
+
+
+def test_scheduled_execution_only_is_one_line(fmi3, tmp_path, capsys):
+    """An FMU with clocks that offers only scheduled execution is named, not run."""
+    import re
+    import zipfile
+
+    source, target = fmi3 / "ForeignPendulum3.fmu", tmp_path / "Scheduled.fmu"
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
+        for name in archive.namelist():
+            data = archive.read(name)
+            if name == "modelDescription.xml":
+                text = re.sub(r"<CoSimulation\b", "<ScheduledExecution", data.decode())
+                text = re.sub(r"</CoSimulation>", "</ScheduledExecution>", text)
+                text = re.sub(r"<ModelExchange\b[^>]*?/>|<ModelExchange\b.*?</ModelExchange>", "", text, flags=re.S)
+                data = text.encode()
+            out.writestr(name, data)
+    code, _, err = run_cli(capsys, "simulate", "paper-step", "--fmu", str(target), "-o", str(tmp_path / "o"))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "not an FMI 2.0 or 3.0 co-simulation FMU (FMI 3.0, scheduled execution only)" in err
