@@ -19,6 +19,12 @@ class ConfigError(ValueError):
         return ConfigError([f"{prefix}: {problem}" for problem in self.problems])
 
 
+class PlantUnfit(ConfigError):
+    """A scenario that the plant FMU it is given cannot run: the FMU lacks what the scenario
+    needs (model exchange for a Kalman estimator's linearization). ``regress --fmu`` reports
+    it for that scenario and goes on with the others."""
+
+
 class FmuError(RuntimeError):
     """An FMU that failed to build, load, or reported an error while running."""
 

@@ -105,6 +105,9 @@ def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
 def _recorded_model(model_name: str) -> str:
     """The model as a controller file records it: a name as it is, a file as an absolute path
     (``derived:variant.yaml`` given from another folder could not be found again)."""
+    fmu, hash_, mapping = str(model_name).partition("#")
+    if fmu.endswith(".fmu"):
+        return str(Path(fmu).resolve()) + (f"#{Path(mapping).resolve()}" if hash_ else "")
     kind, colon, rest = str(model_name).partition(":")
     if kind == "derived" and colon:
         return f"derived:{_recorded_model(rest)}"

@@ -29,7 +29,7 @@ from furuta_cosim.cosim.evaluation import Compiled, runs, scenario_controllers
 from furuta_cosim.cosim.master import Prepared, prepare
 from furuta_cosim.cosim.result import RunResult
 from furuta_cosim.documents import dumps, json_safe
-from furuta_cosim.errors import ConfigError
+from furuta_cosim.errors import ConfigError, PlantUnfit
 from furuta_cosim.files import output_file, output_folder, write_text
 from furuta_cosim.scenario import Scenario, load_mapping, load_scenario
 
@@ -75,7 +75,7 @@ class Case:
     scenario: str
     controller: str
     baseline: Path
-    status: str                    # pass, fail, missing, new, updated, unchanged
+    status: str                    # pass, fail, missing, new, updated, unchanged, unfit
     differences: list[Difference] = field(default_factory=list)
     checked: int = 0               # metrics and signals compared
     wall_time: float = 0.0
@@ -83,9 +83,11 @@ class Case:
 
     @property
     def failed(self) -> bool:
-        return self.status in ("fail", "missing")
+        return self.status in ("fail", "missing", "unfit")
 
     def lines(self) -> list[str]:
+        if self.status == "unfit":
+            return [f"{self.scenario} / {self.controller}: cannot run on this FMU: {note}" for note in self.notes]
         if self.status == "missing":
             return [f"{self.scenario} / {self.controller}: no baseline at {self.baseline} "
                     "(regress --update makes it)"]
@@ -445,6 +447,7 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     plant_mapping = load_mapping(mapping) if mapping else None
     jobs = []   # (prepared, compiled, baseline path, baseline or None)
     problems = []
+    unfit = []  # cases of scenarios the given FMU cannot run
     for path in scenario_files(names):
         scenario = load_scenario(path)
         if plant_mapping is not None:
@@ -452,7 +455,15 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
 
             scenario = replace(scenario, mapping=plant_mapping,
                                control_input=plant_mapping.control_input or scenario.control_input)
-        prepared = prepare(scenario, fmu=fmu, overrides=overrides)
+        try:
+            prepared = prepare(scenario, fmu=fmu, overrides=overrides)
+        except PlantUnfit as error:
+            # this scenario asks what the given FMU cannot do: a failed case, the others still run
+            for name in scenario.controllers:
+                label = Path(name).stem
+                unfit.append(Case(scenario.name, label, baseline_path(scenario, label, baselines),
+                                  "unfit", notes=list(error.problems)))
+            continue
         for compiled in scenario_controllers(prepared):
             target = baseline_path(scenario, compiled.name, baselines)
             baseline = None
@@ -470,7 +481,7 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     if problems:
         raise ConfigError(problems)
     results = _run_all(jobs, workers, progress)
-    cases = []
+    cases = list(unfit)
     for (prepared, compiled, target, baseline), result in zip(jobs, results):
         case = Case(prepared.scenario.name, compiled.name, target, "pass", wall_time=result.wall_time)
         if baseline is not None:
@@ -555,7 +566,7 @@ def junit_xml(report: Report) -> str:
             suite.set("failures", str(int(suite.get("failures")) + 1))
             lines = case.lines()
             failure = ET.SubElement(element, "failure", message=lines[0] if lines else case.status,
-                                    type="regression" if case.status == "fail" else "missing-baseline")
+                                    type={"fail": "regression", "unfit": "plant-unfit"}.get(case.status, "missing-baseline"))
             failure.text = "\n".join(lines)
         properties = ET.SubElement(element, "properties")
         ET.SubElement(properties, "property", name="baseline", value=str(case.baseline))

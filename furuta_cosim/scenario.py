@@ -134,6 +134,8 @@ class PlantMapping:
     control_input: str | None = None   # the file's control_input
     # FMU variable -> (scale, offset) given in the mapping: view value = scale * FMU value + offset
     conversions: Mapping[str, tuple] = field(default_factory=dict)
+    outputs: Mapping[str, str] = field(default_factory=dict)  # recorded output (not fed back) -> FMU output
+    ignore: tuple[str, ...] = ()       # FMU outputs not read at all
 
 
 @dataclass(frozen=True)
@@ -261,11 +263,11 @@ def load_mapping(path: str | Path) -> PlantMapping:
         raise ConfigError([f"--mapping {path}: no such file"])
     data = load_yaml(path)
     check = Checker(path)
-    top = check.mapping(data, "", optional=("control_input", "states", "disturbances", "initial"))
+    top = check.mapping(data, "", optional=("control_input",) + MAPPING_KEYS)
     control_input = None
     if top and "control_input" in top:
         control_input = check.string(top["control_input"], "control_input")
-    parts = {k: v for k, v in (top or {}).items() if k in ("states", "disturbances", "initial")}
+    parts = {k: v for k, v in (top or {}).items() if k in MAPPING_KEYS}
     mapping = _mapping(check, parts, prefix="")
     check.done()
     return replace(mapping, source=str(path), control_input=control_input)
@@ -338,11 +340,11 @@ def _plant(check: Checker, value, folder: Path):
 
 
 def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapping | None:
-    section = check.mapping(value, prefix.rstrip(".") or "", optional=("states", "disturbances", "initial"))
+    section = check.mapping(value, prefix.rstrip(".") or "", optional=MAPPING_KEYS)
     if section is None:
         return None
     parts, conversions = {}, {}
-    for part in ("states", "disturbances", "initial"):
+    for part in ("states", "outputs", "disturbances", "initial"):
         key = f"{prefix}{part}"
         raw = section.get(part, {})
         entries = check.mapping(raw, key, optional=tuple(raw) if isinstance(raw, dict) else ())
@@ -366,14 +368,29 @@ def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapp
             if text:
                 names[str(name)] = text
         parts[part] = Frozen(names)
-    if len(set(parts["states"].values())) != len(parts["states"]):
-        check.fail(f"{prefix}states", "two states map to the same FMU output")
+    ignore = []
+    if "ignore" in section:
+        raw = section["ignore"]
+        if not isinstance(raw, list) or not all(isinstance(n, str) and n for n in raw):
+            check.fail(f"{prefix}ignore", f"expected a list of FMU output names, got {raw!r}")
+        else:
+            ignore = list(raw)
+    mapped = list(parts["states"].values()) + list(parts["outputs"].values())
+    if len(set(mapped)) != len(mapped):
+        check.fail(f"{prefix}states", "two names map to the same FMU output")
+    for name in ignore:
+        if name in mapped:
+            check.fail(f"{prefix}ignore", f"{name} is mapped: it cannot be ignored as well")
     for name in parts["initial"]:
         if parts["states"] and name not in parts["states"]:
             check.fail(f"{prefix}initial.{name}", f"not a mapped state "
                        f"(states: {', '.join(parts['states'])})")
     return PlantMapping(parts["states"], parts["disturbances"], parts["initial"],
-                        conversions=Frozen(conversions))
+                        conversions=Frozen(conversions), outputs=parts["outputs"], ignore=tuple(ignore))
+
+
+# the keys of plant.mapping and of a mapping file (which adds control_input)
+MAPPING_KEYS = ("states", "outputs", "ignore", "disturbances", "initial")
 
 
 def _timing(check: Checker, value):

@@ -52,6 +52,21 @@ def unchecked_requirements(scenario: Scenario, running: Sequence[str]) -> list[s
     return notes
 
 
+def plant_names(prepared) -> str:
+    """The plant's own variables behind the view's names, with their conversions
+    (``theta1 = pend_angle x 0.0174533``); empty when the view uses the FMU's names as they are."""
+    pairs = list(zip(prepared.signals, prepared.outputs)) + [(prepared.control_input, prepared.control_input)] \
+        + list(zip(prepared.disturbances, prepared.disturbance_inputs))
+    parts = []
+    for view, own in pairs:
+        scale, offset = prepared.conversions.get(own, (1.0, 0.0))
+        if view == own and (scale, offset) == (1.0, 0.0):
+            continue
+        parts.append(f"{view} = {own}" + (f" x {scale:g}" if scale != 1.0 else "")
+                     + (f" + {offset:g}" if offset else ""))
+    return ", ".join(parts)
+
+
 def simulate_scenario(scenario: Scenario, output: str | Path, *,
                       controllers: Sequence | None = None, fmu: str | Path | None = None,
                       every: int = 1, traces: bool = True,
@@ -75,6 +90,9 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     notes = unchecked_requirements(scenario, [c.name for c in compiled])
     log(f"simulating {scenario.name}: {prepared.steps} control steps each for "
         f"{', '.join(c.name for c in compiled)}")
+    named = plant_names(prepared)
+    if named:
+        log(f"  on {prepared.fmu.name}: {named}")
     out.mkdir(parents=True, exist_ok=True)
     results, entries, written = {}, {}, []
     for result in runs(prepared, compiled, progress=progress):

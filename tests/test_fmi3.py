@@ -110,3 +110,61 @@ def test_scheduled_execution_only_is_one_line(fmi3, tmp_path, capsys):
     code, _, err = run_cli(capsys, "simulate", "paper-step", "--fmu", str(target), "-o", str(tmp_path / "o"))
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "not an FMI 2.0 or 3.0 co-simulation FMU (FMI 3.0, scheduled execution only)" in err
+
+
+MAPPING_FILE = ("control_input: voltage\nstates: " + STATES + "\n"
+                "disturbances: {tau0: arm_torque, tau1: pend_torque}\n")
+
+
+def test_linearize_and_design_on_the_foreign_plant_match_ours(fmi3, tmp_path, capsys):
+    """Through model exchange: the states from the model structure, named by the mapping."""
+    from furuta_cosim.models import load_model
+
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(MAPPING_FILE)
+    fmu = fmi3 / "ForeignPendulum3.fmu"
+    theirs, ours = load_model(f"{fmu}#{mapping}"), load_model("derived")
+    assert theirs.states == ours.states == ("theta0", "dtheta0", "theta1", "dtheta1", "i")
+    # the same physics written twice: equal to the finite differences' accuracy
+    np.testing.assert_allclose(theirs.A, ours.A, rtol=1e-6, atol=1e-6 * np.abs(ours.A).max())
+    np.testing.assert_allclose(theirs.B, ours.B, rtol=1e-6)
+    code, out, err = run_cli(capsys, "design", "lqr", "--model", str(fmu), "--mapping", str(mapping),
+                             "-o", str(tmp_path / "theirs.yaml"), "--json")
+    assert code == 0, err
+    K = np.array(json.loads(out)["K"])
+    code, out, _ = run_cli(capsys, "design", "lqr", "--model", "derived", "--json")
+    np.testing.assert_allclose(K, np.array(json.loads(out)["K"]), rtol=1e-5)
+    # the file names its model with the mapping: analyze finds both again
+    code, out, err = run_cli(capsys, "analyze", str(tmp_path / "theirs.yaml"))
+    assert code == 0 and "The closed loop is stable" in out, err
+    code, out, err = run_cli(capsys, "linearize", "--fmu", str(fmu), "--mapping", str(mapping), "--json")
+    assert code == 0 and json.loads(out)["states"] == list(ours.states)
+
+
+def test_a_cosimulation_only_fmu_cannot_be_linearized_and_says_so(foreign_fmu, capsys):
+    code, _, err = run_cli(capsys, "design", "lqr", "--model", str(foreign_fmu))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "linearization needs model exchange" in err and "has only co-simulation" in err
+
+
+def test_a_mapping_that_leaves_a_state_out_is_one_line(fmi3, tmp_path, capsys):
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(MAPPING_FILE.replace(", i: current", ""))
+    code, _, err = run_cli(capsys, "linearize", "--fmu", str(fmi3 / "ForeignPendulum3.fmu"),
+                           "--mapping", str(mapping))
+    assert code == 2 and err.strip() == f"error: {mapping}: states: the FMU's states current are not mapped"
+
+
+def test_the_kalman_scenario_runs_on_the_fmi3_plant_and_is_unfit_for_a_cosimulation_only_one(
+        fmi3, foreign_fmu, tmp_path):
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(MAPPING_FILE)
+    report = regress(["noise-kalman", "paper-step"], fmu=fmi3 / "ForeignPendulum3.fmu", mapping=mapping, workers=1)
+    assert [c.status for c in report.cases] == ["pass"] * 4, [c.lines() for c in report.cases]
+    mapping.write_text(MAPPING_FILE + "initial: {theta1: pend_angle_0}\n")
+    report = regress(["noise-kalman", "paper-step"], fmu=foreign_fmu, mapping=mapping, workers=1)
+    statuses = {(c.scenario, c.controller): c.status for c in report.cases}
+    assert statuses == {("noise-kalman", "lqr-paper"): "unfit", ("noise-kalman", "bo-paper"): "unfit",
+                        ("paper-step", "lqr-paper"): "pass", ("paper-step", "bo-paper"): "pass"}
+    line = next(c for c in report.cases if c.status == "unfit").lines()[0]
+    assert "through model exchange, which ForeignPendulum.fmu does not offer" in line

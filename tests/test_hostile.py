@@ -559,7 +559,10 @@ def test_a_dask_run_without_workers_or_scheduler_stops_resumably(tmp_path):
         cluster.close()
     _, err = process.communicate(timeout=300)
     assert process.returncode == 75, err
-    assert "scheduler" in err and "was lost" in err
+    # seen as lost while a batch is out, or as silent when the next batch is sent: which one
+    # comes first depends on the machine's load
+    assert ("scheduler" in err and "was lost" in err) or "does not answer" in err, err
+    assert "--resume continues" in err, err
     kept = len((run / "history.jsonl").read_text().splitlines())
     done = subprocess.run(CLI + ["tune", "effort", "-o", str(run), "--resume", "--workers", "1",
                                  "--n-calls", str(kept + 2)], capture_output=True, text=True)

@@ -147,3 +147,57 @@ def test_a_state_without_a_start_is_named(degrees, tmp_path, capsys):
     assert code == 2
     assert ("plant.initial.theta1: ForeignPendulum has no parameter 'pend_angle_start' to set the start "
             "of theta1 and its output 'pend_angle' takes no start value") in err
+
+
+MAPPING_FILE = """\
+control_input: voltage
+states:
+  theta0: {variable: arm_angle, scale: %(deg)r}
+  dtheta0: {variable: arm_rate, scale: %(deg)r}
+  theta1: {variable: pend_angle, scale: %(deg)r}
+  dtheta1: {variable: pend_rate, scale: %(deg)r}
+  i: current
+disturbances: {tau0: arm_torque, tau1: pend_torque}
+""" % {"deg": DEG}
+
+
+def test_regress_passes_the_degree_pendulum_once_its_extra_output_is_ignored(degrees, tmp_path):
+    from furuta_cosim.regression import regress
+
+    mapping = tmp_path / "mapping.yaml"
+    mapping.write_text(MAPPING_FILE)
+    fmu = degrees / "DegreePendulum.fmu"
+    report = regress(["paper-step"], fmu=fmu, mapping=mapping, workers=1)
+    # arm_turns is not a state and not in the native plant's baselines: it is reported
+    assert [c.status for c in report.cases] == ["fail", "fail"]
+    assert any("arm_turns" in line for line in report.cases[0].lines()), report.cases[0].lines()
+    mapping.write_text(MAPPING_FILE + "ignore: [arm_turns]\n")
+    report = regress(["paper-step"], fmu=fmu, mapping=mapping, workers=1)
+    assert [c.status for c in report.cases] == ["pass", "pass"], [c.lines() for c in report.cases]
+    assert min(c.checked for c in report.cases) >= 10
+
+
+def test_a_non_state_output_can_be_renamed(degrees):
+    path = degrees / "paper-step-renamed.yaml"
+    path.write_text((degrees / "paper-step-scaled.yaml").read_text().replace(
+        "    disturbances:", "    outputs: {turns: arm_turns}\n    disturbances:"))
+    prepared, result = run(path)
+    assert "turns" in prepared.signals and "arm_turns" not in prepared.signals
+    np.testing.assert_allclose(result.trace["turns"], result.trace["theta0"] / (2 * np.pi), rtol=1e-12, atol=1e-15)
+
+
+def test_ignoring_an_output_that_does_not_exist_is_one_line(degrees, tmp_path, capsys):
+    path = degrees / "paper-step-ignore.yaml"
+    path.write_text((degrees / "paper-step-scaled.yaml").read_text().replace(
+        "    disturbances:", "    ignore: [no_such]\n    disturbances:"))
+    code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"error: {path}: plant.mapping.ignore: DegreePendulum has no Real output 'no_such'")
+
+
+def test_simulate_names_the_plants_own_variables(degrees, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "simulate", str(degrees / "paper-step-scaled.yaml"), "-o", str(tmp_path),
+                             "--no-trace", "--controller", "lqr-paper")
+    assert code == 0, err
+    assert ("on DegreePendulum.fmu: theta0 = arm_angle x 0.0174533, dtheta0 = arm_rate x 0.0174533, "
+            "theta1 = pend_angle x 0.0174533, dtheta1 = pend_rate x 0.0174533, i = current\n") in out + err

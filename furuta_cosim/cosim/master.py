@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from furuta_cosim.defaults import PAPER_PERIOD, TRACKED_OUTPUT
-from furuta_cosim.errors import ConfigError, DesignError, FmuError
+from furuta_cosim.errors import ConfigError, DesignError, FmuError, PlantUnfit
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 from furuta_cosim.fmu.session import model_description
+from furuta_cosim.fmu.variables import declared_conversion, is_real, settable_start
 from furuta_cosim.metrics import catalogue, problem
 from furuta_cosim.scenario import Scenario
 from furuta_cosim.signals import COMMAND, estimate, is_controller_state, start_parameter
@@ -183,7 +184,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                     "does under plant.mapping.initial"))
             continue
         # a start parameter in units of its own, else in those of the state it starts
-        scale, offset = _declared(description, variables[target]) or conversions.get(output, (1.0, 0.0))
+        scale, offset = declared_conversion(description, variables[target]) or conversions.get(output, (1.0, 0.0))
         start[target] = (value - offset) / scale
 
     tracked = scenario.reference.output or (TRACKED_OUTPUT if TRACKED_OUTPUT in signals
@@ -285,6 +286,10 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
     kind = "Float64" if any(v.type == "Float64" for v in variables.values()) else "Real"
     outputs = [n for n, v in variables.items() if v.causality == "output" and n in reals]
     inputs = [n for n, v in variables.items() if v.causality == "input" and n in reals]
+    for name in mapping.ignore if mapping else ():
+        if name not in outputs:
+            fail("plant.mapping.ignore", f"{identifier} has no {kind} output {name!r} (outputs: {', '.join(outputs)})")
+    outputs = [n for n in outputs if not (mapping and n in mapping.ignore)]
     if mapping and mapping.states:
         states = list(mapping.states)
         state_outputs = []
@@ -299,10 +304,19 @@ def _view(scenario: Scenario, variables: dict, identifier: str, fail):
             fail("plant.mapping.states", f"{identifier} does not mark its states (outputs with a "
                  "<name>_start parameter): map its outputs to the fed-back states")
     rename = dict(zip(state_outputs, states))
+    for name, target in (mapping.outputs if mapping else {}).items():
+        if target not in outputs:
+            fail(f"plant.mapping.outputs.{name}", f"{identifier} has no {kind} output {target!r} "
+                 f"(outputs: {', '.join(outputs)})")
+        elif target in rename:
+            fail(f"plant.mapping.outputs.{name}", f"{target} is mapped to the state {rename[target]} already")
+        else:
+            rename[target] = name
     signals = [rename.get(n, n) for n in outputs]
-    for name in states:
+    for name in dict.fromkeys(signals):
         if signals.count(name) > 1:
-            fail(f"plant.mapping.states.{name}", f"{identifier} has an unmapped output of the same name")
+            part = "states" if name in states else "outputs"
+            fail(f"plant.mapping.{part}.{name}", f"{identifier} has an unmapped output of the same name")
 
     control_input = scenario.control_input or (inputs[0] if inputs else "")
     if control_input not in inputs:
@@ -332,7 +346,7 @@ def _units(description, outputs, signals, control_input, conversions) -> dict[st
         if name in conversions:
             definition = definitions.get(text)
             if definition is None or definition.baseUnit is None or \
-                    conversions[name] != _declared(description, variable):
+                    conversions[name] != declared_conversion(description, variable):
                 return None
             return _si(definition.baseUnit) or None
         return text
@@ -353,32 +367,6 @@ def _si(base) -> str:
     return ".".join(up or (["1"] if down else [])) + "".join("/" + d for d in down)
 
 
-def is_real(variable) -> bool:
-    """A scalar floating-point variable: FMI 2.0's Real, FMI 3.0's Float64 (not an array)."""
-    return variable.type in ("Real", "Float64") and not getattr(variable, "dimensions", None)
-
-
-def settable_start(variable) -> bool:
-    """Whether an importer may set the variable's start value before initialization (FMI 2.0
-    and 3.0: ``initial`` exact or approx on a variable that is not a constant)."""
-    return variable.initial in ("exact", "approx") and variable.variability != "constant"
-
-
-def _declared(description, variable) -> tuple[float, float] | None:
-    """(factor, offset) from the unit the variable declares to its SI base unit, when that
-    differs from 1 and 0 (``deg``: factor pi/180); None otherwise."""
-    declared = getattr(variable, "declaredType", None)
-    name = variable.unit or (declared.unit if declared is not None else None)
-    if not name:
-        return None
-    for unit in description.unitDefinitions:
-        if unit.name == name and unit.baseUnit is not None:
-            factor, offset = float(unit.baseUnit.factor), float(unit.baseUnit.offset)
-            if (factor, offset) != (1.0, 0.0):
-                return factor, offset
-    return None
-
-
 def _conversions(description, mapping, names, fail) -> dict[str, tuple[float, float]]:
     """FMU variable -> (scale, offset) with view value = scale * FMU value + offset: from the
     mapping, else from the unit the variable declares; only the variables that need one."""
@@ -388,7 +376,7 @@ def _conversions(description, mapping, names, fail) -> dict[str, tuple[float, fl
     for name in names:
         if name in given:
             found[name] = given[name]
-        elif name in variables and (declared := _declared(description, variables[name])):
+        elif name in variables and (declared := declared_conversion(description, variables[name])):
             found[name] = declared
     return found
 
@@ -442,17 +430,28 @@ def _kalman(prepared: Prepared, state_outputs: list[str]) -> tuple:
     scenario = prepared.scenario
     to_fmu = dict(zip(prepared.signals, prepared.outputs))
     inputs = [prepared.control_input] + prepared.disturbance_inputs
+    measured = [to_fmu[n] for n in prepared.measured]
+    description = model_description(prepared.fmu)
+    if description.modelExchange is None:
+        raise PlantUnfit([f"{scenario.source}: estimator: the Kalman design linearizes the plant "
+                          f"through model exchange, which {prepared.fmu.name} does not offer"])
     try:
         lin = linearize(prepared.fmu, parameters=prepared.start, inputs={n: 0.0 for n in inputs},
-                        outputs=[to_fmu[n] for n in prepared.measured])
+                        outputs=measured)
     except FmuError as error:
-        raise ConfigError([f"{scenario.source}: estimator: the plant FMU cannot be linearized "
-                           f"for the Kalman design ({error})"]) from None
+        raise PlantUnfit([f"{scenario.source}: estimator: the plant FMU cannot be linearized "
+                          f"for the Kalman design ({error})"]) from None
     if sorted(lin.states) != sorted(state_outputs):
-        raise ConfigError([f"{scenario.source}: estimator: the FMU's states ({', '.join(lin.states)}) "
-                           f"are not the fed-back states ({', '.join(state_outputs)})"])
+        raise PlantUnfit([f"{scenario.source}: estimator: the FMU's states ({', '.join(lin.states)}) "
+                          f"are not the fed-back states ({', '.join(state_outputs)})"])
     order = [lin.states.index(n) for n in state_outputs]
-    system = control.ss(lin.A[np.ix_(order, order)], lin.B[order], lin.C[:, order], lin.D)
+    # in the view's units: x_view = Sx x_fmu, u_view = Su u_fmu, y_view = Sy y_fmu
+    scale = [prepared.conversions.get(n, (1.0, 0.0))[0] for n in state_outputs]
+    Sx, Sx_inv = np.diag(scale), np.diag(1.0 / np.array(scale))
+    Su_inv = np.diag([1.0 / prepared.conversions.get(n, (1.0, 0.0))[0] for n in inputs])
+    Sy = np.diag([prepared.conversions.get(n, (1.0, 0.0))[0] for n in measured])
+    system = control.ss(Sx @ lin.A[np.ix_(order, order)] @ Sx_inv, Sx @ lin.B[order] @ Su_inv,
+                        Sy @ lin.C[:, order] @ Sx_inv, Sy @ lin.D @ Su_inv)
     if not lin.period:
         system = control.c2d(system, prepared.control_period, method="zoh")
     elif abs(lin.period - prepared.control_period) > 1e-12:

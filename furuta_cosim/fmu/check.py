@@ -15,7 +15,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from furuta_cosim.errors import FmuError
-from furuta_cosim.fmu.session import FmuBinary, PlantSession
+from furuta_cosim.fmu.session import FmuBinary, PlantSession, model_description
+from furuta_cosim.fmu.variables import is_real
 
 
 @dataclass(frozen=True)
@@ -91,33 +92,68 @@ def run_ecos_connected(fmus: Mapping[str, str | Path], connections: Sequence[tup
 
 
 def validate(fmu: str | Path) -> list[Finding]:
-    """fmpy validation, a smoke run in our session and in fmpy, and a cross-check in Ecos."""
-    from fmpy.validation import validate_fmu
-
+    """fmpy's validation, then a smoke run in our session and in fmpy and a cross-check in Ecos
+    of the floating-point outputs, for FMI 2.0 and 3.0. fmpy's problems are reported as such and
+    the runs still run: an FMU that fmpy flags may still run, and the user learns both. Never
+    raises: whatever goes wrong is a finding."""
     fmu = Path(fmu)
-    findings = []
     if not fmu.is_file():
         return [Finding("file", False, f"{fmu}: no such file")]
-    problems = validate_fmu(str(fmu))
+    findings: list[Finding] = []
+    try:
+        _validate(fmu, findings)
+    except Exception as error:  # an FMU is hostile input: whatever it does becomes a finding
+        findings.append(Finding("unexpected", False, f"{type(error).__name__}: {error}"))
+    return findings
+
+
+def _validate(fmu: Path, findings: list[Finding]) -> None:
+    from fmpy.validation import validate_fmu
+
+    try:
+        problems = validate_fmu(str(fmu))
+    except Exception as error:  # fmpy raises bare Exceptions
+        problems = [str(error)]
     findings.append(Finding("fmpy validate", not problems,
                             "no problems" if not problems else "; ".join(problems)))
-    if problems:
-        return findings
+    try:
+        md = model_description(fmu)
+    except FmuError as error:
+        findings.append(Finding("model description", False, str(error)))
+        return
+    variables = md.modelVariables
+    outputs = [v.name for v in variables if v.causality == "output" and is_real(v)]
+    others = {}
+    for v in variables:
+        if v.causality == "output" and not is_real(v):
+            kind = f"{v.type} array" if getattr(v, "dimensions", None) else v.type
+            others[kind] = others.get(kind, 0) + 1
+    unread = ", ".join(f"{n} {kind}" for kind, n in sorted(others.items()))
+    described = f"FMI {md.fmiVersion}, " + ", ".join(
+        name for name, part in (("co-simulation", md.coSimulation), ("model exchange", md.modelExchange),
+                                ("scheduled execution", md.scheduledExecution)) if part is not None)
+    clocks = sum(1 for v in variables if v.type == "Clock")
+    findings.append(Finding("interfaces", True, described + (f"; {clocks} clock(s)" if clocks else "")))
+    smoke = "smoke run (100 steps, PlantSession)"
+    if md.coSimulation is None:
+        findings.append(Finding(smoke, None, "not run: the smoke runs need co-simulation"
+                                + (" (scheduled execution, with clocks, is not supported)"
+                                   if md.scheduledExecution else "")))
+        return
+    step = float(md.defaultExperiment.stepSize) if md.defaultExperiment and md.defaultExperiment.stepSize else 1e-3
     try:
         with FmuBinary(fmu) as binary:
-            md = binary.model_description
-            step = float(md.defaultExperiment.stepSize) if md.defaultExperiment and md.defaultExperiment.stepSize else 1e-3
-            outputs = [v.name for v in md.modelVariables if v.causality == "output"]
             with PlantSession(binary) as session:
                 session.reset()
                 session.set_io([], outputs)
                 values = [session.step([], step) for _ in range(100)]
-            finite = all(math.isfinite(v) for row in values for v in row)
-            findings.append(Finding("smoke run (100 steps, PlantSession)", finite,
-                                    f"{len(outputs)} outputs finite" if finite else "non-finite outputs"))
+        finite = all(math.isfinite(v) for row in values for v in row)
+        findings.append(Finding(smoke, finite, (f"{len(outputs)} floating-point outputs finite" if finite
+                                                else "non-finite outputs")
+                                + (f" ({unread} outputs not read)" if unread else "")))
     except FmuError as error:
-        findings.append(Finding("smoke run (100 steps, PlantSession)", False, str(error)))
-        return findings
+        findings.append(Finding(smoke, False, str(error)))
+        return
     stop = 100 * step
     try:
         reference = run_fmpy(fmu, {}, outputs, stop, step)
@@ -125,11 +161,11 @@ def validate(fmu: str | Path) -> list[Finding]:
                                 f"{len(reference)} steps"))
     except Exception as error:  # fmpy raises bare Exceptions
         findings.append(Finding("fmpy simulate_fmu", False, str(error)))
-        return findings
+        return
     reason = ecos_available()
     if reason:
         findings.append(Finding("Ecos", None, f"not run: {reason}"))
-        return findings
+        return
     try:
         other = run_ecos(fmu, {}, outputs, stop, step)
         difference = relative_difference(other, reference)
@@ -137,7 +173,6 @@ def validate(fmu: str | Path) -> list[Finding]:
                                 f"max relative difference {difference:.2e} (limit 1e-12)"))
     except Exception as error:  # ecospy raises bare Exceptions
         findings.append(Finding("Ecos (same run as fmpy)", False, str(error)))
-    return findings
 
 
 def relative_difference(a: np.ndarray, b: np.ndarray) -> float:

@@ -27,6 +27,7 @@ from fmpy.model_description import ModelDescription
 from furuta_cosim.errors import FmuError
 from furuta_cosim.files import temporary_folder
 from furuta_cosim.fmu.compiler import build_helper
+from furuta_cosim.fmu.variables import settable_start
 from furuta_cosim.signals import start_parameter
 
 _FFI = cffi.FFI()
@@ -355,7 +356,7 @@ class PlantSession:
         reals, integers = [], []
         for name, value in values.items():
             variable = self.binary.variable(name)
-            start = starts and variable.initial in ("exact", "approx") and variable.variability != "constant"
+            start = starts and settable_start(variable)
             if variable.causality not in ("parameter", "input") and not start:
                 raise FmuError(f"{self.binary.identifier}: {name} is a {variable.causality}"
                                + (" without a start value an importer may set" if starts else "")

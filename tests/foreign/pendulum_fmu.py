@@ -13,8 +13,9 @@ from pendulum_physics import INPUTS, PHYSICS, STATES, rates
 class ForeignPendulum(Fmi2Slave):
     author = "tests"
     description = "Furuta pendulum, independent pythonfmu implementation"
-    # a variant (tests/test_units.py) gives angles in degrees and takes the start of a
-    # state on the state itself, as many exporters do, instead of on a <state>_0 parameter
+    # a variant (tests/test_units.py) gives angles in degrees, an output that is not a state
+    # (arm_turns), and takes the start of a state on the state itself, as many exporters do,
+    # instead of on a <state>_0 parameter
     DEGREES = False
     START_PARAMETERS = True
 
@@ -37,6 +38,10 @@ class ForeignPendulum(Fmi2Slave):
         for name in INPUTS:
             setattr(self, name, 0.0)
             self.register_variable(Real(name, causality=Fmi2Causality.input))
+        if self.DEGREES:
+            # an output that is not a state, as exporters often add
+            self.register_variable(Real("arm_turns", causality=Fmi2Causality.output,
+                                        getter=lambda: self.arm_angle / 360.0))
 
     def exit_initialization_mode(self):
         if not self.START_PARAMETERS:
