@@ -28,7 +28,8 @@ def cmd_build_fmu(args) -> int:
         wanted = Path(args.output)
         (output_file if wanted.suffix == ".fmu" else output_folder)(wanted)
 
-    path = build_fmu(args.model, output=args.output, log=lambda line: print(line, file=sys.stderr))
+    path = build_fmu(args.model, output=args.output, log=lambda line: print(line, file=sys.stderr),
+                     fmi_version=args.fmi_version)
     print(path)
     return 0
 
@@ -318,7 +319,7 @@ def cmd_export_controller(args) -> int:
         wanted = Path(args.output)
         (output_file if wanted.suffix == ".fmu" else output_folder)(wanted)
     path = export_controller(args.controller, output=args.output, period=args.period,
-                             model=args.model, delay=args.delay,
+                             model=args.model, delay=args.delay, fmi_version=args.fmi_version,
                              log=lambda line: print(line, file=sys.stderr))
     print(path)
     return 0
@@ -391,6 +392,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", nargs="?", default="furuta",
                    help="model or plant file: furuta (default), table-literal, toy, or a .yaml path")
     p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
+    p.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
+                   help="FMI 2.0 (default) or 3.0; both with co-simulation, and model exchange "
+                        "when the model is continuous")
     p.set_defaults(handler=cmd_build_fmu)
 
     p = commands.add_parser("linearize", help="linearize a plant FMU at its start point")
@@ -484,6 +488,9 @@ def build_parser() -> argparse.ArgumentParser:
                             help="build a controller as an FMI 2.0 co-simulation FMU and print its path")
     p.add_argument("controller", help="controller file or name in scenarios/controllers")
     p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
+    p.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
+                   help="FMI 2.0 (default) or 3.0; both with co-simulation, and model exchange "
+                        "when the model is continuous")
     p.add_argument("--delay", type=int, choices=(0, 1), default=0,
                    help="1: apply each command one sample late, with no direct feedthrough "
                         "(the same loop in any master; timing.delay: 1 in a scenario)")

@@ -93,14 +93,14 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
 
 def export_controller(name: str | Path, output: str | Path | None = None, *,
                       period: float | None = None, model: str | None = None, delay: int = 0,
-                      log=None) -> Path:
+                      log=None, fmi_version: str = "2.0") -> Path:
     """Build the controller FMU (cached like the plants'); copy it to ``output`` when given."""
     from furuta_cosim.fmu.exporter import build_fmu
 
     if delay not in (0, 1):
         raise ConfigError([f"--delay: expected 0 or 1 control samples, got {delay}"])
     return build_fmu(controller_plant(name, period=period, model=model, delay=delay),
-                     output=output, log=log)
+                     output=output, log=log, fmi_version=fmi_version)
 
 
 def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):

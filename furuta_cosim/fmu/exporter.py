@@ -1,9 +1,11 @@
-"""The exporter: a plant declaration plus its C equations -> a native FMI 2.0 FMU.
+"""The exporter: a plant declaration plus its C equations -> a native FMI 2.0 or 3.0 FMU.
 
 ``build_fmu(plant)`` loads ``fmu_src/<model>/model.py``, generates ``modelDescription.xml``
 and ``model_vars.h`` from the declaration, compiles the generic glue and the model with the
 machine's C compiler against the FMI headers shipped inside fmpy, and zips the binary with
 a complete ``sources/`` folder. FMUs are cached by a hash of everything that goes into them.
+An FMI 3.0 FMU (``fmi_version="3.0"``) adds ``fmi3_glue.c``, which implements FMI 3.0 on the
+FMI 2.0 glue: the same model, modes and integration, so the two give the same numbers.
 """
 
 from __future__ import annotations
@@ -27,15 +29,17 @@ from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant, models
 
 GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
+GLUE_SOURCES_3 = GLUE_SOURCES + ("fmi3_glue.c",)
+FMI_VERSIONS = ("2.0", "3.0")
 # FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
 # the cache key, so such builds never mix with ordinary ones
-PLATFORM = "linux64"
+PLATFORM = {"2.0": "linux64", "3.0": "x86_64-linux"}  # binaries/<platform>/ of each version
 _KINDS = {"parameter": "KIND_PARAMETER", "input": "KIND_INPUT", "output": "KIND_OUTPUT",
           "local": "KIND_LOCAL"}
 
 
 def fmi_headers() -> Path:
-    """The FMI 2.0 headers that fmpy ships."""
+    """The FMI 2.0 and 3.0 headers that fmpy ships."""
     return Path(fmpy.__file__).parent / "c-code"
 
 
@@ -211,6 +215,84 @@ def generate_model_description(model: Model, guid: str, sources: list[str]) -> s
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
+def generate_model_description_3(model: Model, guid: str) -> str:
+    """``modelDescription.xml`` (FMI 3.0): the same variables with the same value references
+    as the FMI 2.0 description, as Float64 and Int32, plus the independent variable ``time``."""
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": model.identifier, "instantiationToken": guid,
+        "description": model.description, "generationTool": f"furuta-cosim {__version__}",
+        "variableNamingConvention": "structured"})
+    capabilities = {"modelIdentifier": model.identifier, "canGetAndSetFMUState": "true",
+                    "canSerializeFMUState": "true"}
+    if not model.discrete:
+        ET.SubElement(root, "ModelExchange", capabilities)
+    ET.SubElement(root, "CoSimulation", {**capabilities, "canHandleVariableCommunicationStepSize": "true",
+                                         "hasEventMode": "false"})
+    units = sorted({v.unit for v in model.reals if v.unit})
+    if units:
+        definitions = ET.SubElement(root, "UnitDefinitions")
+        for unit in units:
+            ET.SubElement(definitions, "Unit", {"name": unit})
+    categories = ET.SubElement(root, "LogCategories")
+    for name in ("logStatusError", "logAll"):
+        ET.SubElement(categories, "Category", {"name": name})
+    step = model_period(model)
+    ET.SubElement(root, "DefaultExperiment",
+                  {"startTime": "0.0", "stopTime": _number(100 * step), "stepSize": _number(step)})
+    variables = ET.SubElement(root, "ModelVariables")
+    time_vr = len(model.reals) + len(model.integers)  # TIME_VR of fmi3_glue.c
+    ET.SubElement(variables, "Float64", {"name": "time", "valueReference": str(time_vr),
+                                         "causality": "independent", "variability": "continuous",
+                                         "description": "simulation time"})
+    continuity = "discrete" if model.discrete else "continuous"
+    derivative_of = {s.derivative: s.name for s in model.states if s.derivative}
+    for k, v in enumerate(model.reals):
+        attributes = {"name": v.name, "valueReference": str(k), "causality": v.causality}
+        if v.description:
+            attributes["description"] = v.description
+        if v.causality == "parameter":
+            attributes.update(variability="fixed", initial="exact", start=_number(v.start))
+        elif v.causality == "input":
+            attributes.update(variability=continuity, start=_number(v.start))
+        else:
+            attributes.update(variability=continuity, initial="calculated")
+        if v.unit:
+            attributes["unit"] = v.unit
+        if v.name in derivative_of:
+            attributes["derivative"] = str(model.value_reference(derivative_of[v.name]))
+        ET.SubElement(variables, "Float64", attributes)
+    for k, v in enumerate(model.integers):
+        attributes = {"name": v.name, "valueReference": str(len(model.reals) + k),
+                      "causality": "parameter", "variability": "fixed", "initial": "exact"}
+        if v.description:
+            attributes["description"] = v.description
+        attributes.update(start=str(v.start), min=str(v.minimum), max=str(v.maximum))
+        ET.SubElement(variables, "Int32", attributes)
+    structure = ET.SubElement(root, "ModelStructure")
+    outputs = [model.value_reference(v.name) for v in model.reals if v.causality == "output"]
+    derivatives = [model.value_reference(s.derivative) for s in model.states if s.derivative]
+    for vr in outputs:
+        ET.SubElement(structure, "Output", {"valueReference": str(vr)})
+    for vr in derivatives:
+        ET.SubElement(structure, "ContinuousStateDerivative", {"valueReference": str(vr)})
+    for vr in sorted(outputs + derivatives):
+        ET.SubElement(structure, "InitialUnknown", {"valueReference": str(vr)})
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def generate_build_description(model: Model, sources: list[str]) -> str:
+    """``sources/buildDescription.xml`` (FMI 3.0): the C files that make the binary."""
+    root = ET.Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    configuration = ET.SubElement(root, "BuildConfiguration", {"modelIdentifier": model.identifier})
+    files = ET.SubElement(configuration, "SourceFileSet", {"language": "C99"})
+    for name in sources:
+        if name.endswith(".c"):
+            ET.SubElement(files, "SourceFile", {"name": name})
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
 def model_period(model: Model) -> float:
     """Default communication step: the sample period, or 1 ms for continuous plants."""
     if model.sample_period:
@@ -219,7 +301,7 @@ def model_period(model: Model) -> float:
 
 
 def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None,
-              log=None) -> Path:
+              log=None, fmi_version: str = "2.0") -> Path:
     """Build (or take from the cache) the FMU of ``plant`` and return its path.
 
     Parameters
@@ -230,19 +312,22 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
         Also copy the FMU there (a folder or a file name).
     log : callable, optional
         Receives one line per build step.
+    fmi_version : {"2.0", "3.0"}
     """
+    if fmi_version not in FMI_VERSIONS:
+        raise ConfigError([f"--fmi-version: expected one of {', '.join(FMI_VERSIONS)}, got {fmi_version!r}"])
     if not isinstance(plant, PlantSet):
         plant = load_plant(plant)
     memo = repr((plant.model, sorted(plant.parameters.items()), plant.linear,
-                 _source_stamps(plant.model), paths.cache()))
+                 _source_stamps(plant.model), paths.cache(), fmi_version))
     target, stamp = _BUILT.get(memo, (None, None))
     if target is None or _stamp(target) != stamp:
-        target = _build_cached(plant, log)
+        target = _build_cached(plant, log, fmi_version)
         _BUILT[memo] = target, _stamp(target)
     if output is not None:
         output = Path(output)
         if output.is_dir() or output.suffix != ".fmu":
-            output = output / f"{target.name.rsplit('-', 1)[0]}.fmu"  # <Identifier>.fmu
+            output = output / f"{target.name.split('-', 1)[0]}.fmu"  # <Identifier>.fmu (a C name: no dash)
         return copy(target, output)
     return target
 
@@ -265,23 +350,27 @@ def _source_stamps(model: str) -> tuple:
     return tuple(sorted((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files if f.is_file()))
 
 
-def _build_cached(plant: PlantSet, log) -> Path:
+def _build_cached(plant: PlantSet, log, fmi_version: str = "2.0") -> Path:
     """The FMU of ``plant`` in the cache, built there if it is not (or is damaged). The key
     does not depend on which compiler is installed, so a warm cache needs none."""
     model = declaration(plant)
     model_dir = paths.fmu_sources() / plant.model
     common = paths.fmu_sources() / "common"
-    files = {name: (common / name).read_text() for name in GLUE_SOURCES}
+    files = {name: (common / name).read_text()
+             for name in (GLUE_SOURCES if fmi_version == "2.0" else GLUE_SOURCES_3)}
     files["model.c"] = (model_dir / "model.c").read_text()
     digest = hashlib.sha256()
     for name in sorted(files):
         digest.update(name.encode() + b"\0" + files[name].encode() + b"\0")
     digest.update(generate_header(model, "").encode())
-    digest.update(generate_model_description(model, "", sorted(files)).encode())
+    digest.update((generate_model_description(model, "", sorted(files)) if fmi_version == "2.0"
+                   else generate_model_description_3(model, "")).encode())
     digest.update(" ".join(CFLAGS).encode())
     key = digest.hexdigest()
     guid = "{" + str(uuid.UUID(key[:32])) + "}"
-    target = paths.cache() / f"{model.identifier}-{key[:16]}.fmu"
+    # the FMI 2.0 name stays as it was: caches and files made before FMI 3.0 remain valid
+    target = paths.cache() / (f"{model.identifier}-{key[:16]}.fmu" if fmi_version == "2.0"
+                              else f"{model.identifier}-fmi3-{key[:16]}.fmu")
     if intact(target, log):
         return target
     cc = compiler()
@@ -291,7 +380,7 @@ def _build_cached(plant: PlantSet, log) -> Path:
                 log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
             files["model_vars.h"] = generate_header(model, guid)
             try:
-                _build(model, files, guid, cc, target)
+                _build(model, files, guid, cc, target, fmi_version)
                 seal(target)
             except OSError as error:
                 raise unwritable(error) from None
@@ -313,7 +402,7 @@ def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
         raise ConfigError([f"{plant.path}: parameters: the FMU refuses these values: {reason}"]) from None
 
 
-def _build(model: Model, files: dict, guid: str, cc: str, target: Path) -> None:
+def _build(model: Model, files: dict, guid: str, cc: str, target: Path, fmi_version: str = "2.0") -> None:
     sources = sorted(files)
     work = temporary_folder("build")
     try:
@@ -328,15 +417,20 @@ def _build(model: Model, files: dict, guid: str, cc: str, target: Path) -> None:
             raise FmuError(f"cannot run the C compiler {cc}: {error.strerror}") from None
         if result.returncode != 0:
             raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}")
-        description = generate_model_description(model, guid, sources)
+        description = (generate_model_description(model, guid, sources) if fmi_version == "2.0"
+                       else generate_model_description_3(model, guid))
         # atomic: a concurrent build or a crash never leaves half an FMU under its name
         with atomic(target) as partial:
             with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
                 # fixed dates: the same sources give the same bytes, whichever build wins
                 _member(archive, "modelDescription.xml", description.encode())
-                _member(archive, f"binaries/{PLATFORM}/{model.identifier}.so", binary.read_bytes(), 0o755)
+                _member(archive, f"binaries/{PLATFORM[fmi_version]}/{model.identifier}.so",
+                        binary.read_bytes(), 0o755)
                 for name in sources:
                     _member(archive, f"sources/{name}", files[name].encode())
+                if fmi_version == "3.0":
+                    _member(archive, "sources/buildDescription.xml",
+                            generate_build_description(model, sources).encode())
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
