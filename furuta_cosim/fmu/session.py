@@ -238,6 +238,10 @@ class PlantSession:
     """
 
     REAL, INTEGER = "Real", "Integer"  # the FMI types read and written as double and int
+    # the calls whose signature is the same in FMI 2.0 and 3.0 but whose name is not
+    GET_STATE, SET_STATE, FREE_STATE = "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"
+    SET_X, GET_DX = "fmi2SetContinuousStates", "fmi2GetDerivatives"
+    TERMINATE, FREE, DO_STEP = "fmi2Terminate", "fmi2FreeInstance", "fmi2DoStep"
 
     def __new__(cls, binary: FmuBinary, *args, **kwargs):
         if cls is PlantSession and binary.version == "3.0":
@@ -337,12 +341,7 @@ class PlantSession:
         self._initialized = True
         # before initialization: where FMI 2.0 lets an importer set every start value (a
         # variable with initial="approx" may be set only here)
-        if reals:
-            vrs, values = zip(*reals)
-            self._check(lib.fmi2SetReal(c, vrs, len(vrs), values), "setting start values")
-        if integers:
-            vrs, values = zip(*integers)
-            self._check(lib.fmi2SetInteger(c, vrs, len(vrs), values), "setting start values")
+        self._set_starts(reals, integers)
         self._check(lib.fmi2EnterInitializationMode(c), "fmi2EnterInitializationMode")
         self._check(lib.fmi2ExitInitializationMode(c), "fmi2ExitInitializationMode")
         if self._interface == "ModelExchange":
@@ -351,6 +350,19 @@ class PlantSession:
             self._check(lib.fmi2EnterContinuousTimeMode(c), "fmi2EnterContinuousTimeMode")
         self.time = self._start = start_time
         self._k = 0
+
+    def _set_starts(self, reals, integers) -> None:
+        for pairs, integer in ((reals, False), (integers, True)):
+            if pairs:
+                vrs, values = zip(*pairs)
+                self._check(self._set_values(integer, vrs, values), "setting start values")
+
+    # the calls that differ in their arguments between FMI 2.0 and 3.0
+    def _get_values(self, integer: bool, vrs, buffer) -> int:
+        return (self._lib.fmi2GetInteger if integer else self._lib.fmi2GetReal)(self._c, vrs, len(vrs), buffer)
+
+    def _set_values(self, integer: bool, vrs, values) -> int:
+        return (self._lib.fmi2SetInteger if integer else self._lib.fmi2SetReal)(self._c, vrs, len(vrs), values)
 
     def _split(self, values: Mapping[str, float], starts: bool = False):
         reals, integers = [], []
@@ -420,7 +432,7 @@ class PlantSession:
     def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
         which, status = divmod(failed, 8)
         what = {1: f"setting {', '.join(self.inputs)} = {list(inputs)}",
-                2: f"fmi2DoStep at t = {self.time:.9g}", 3: "reading the outputs"}[which]
+                2: f"{self.DO_STEP} at t = {self.time:.9g}", 3: "reading the outputs"}[which]
         self._check(status, what)
 
     def _step_three_calls(self, call, t: float, h: float) -> int:
@@ -445,14 +457,9 @@ class PlantSession:
             if variable.type not in (self.REAL, self.INTEGER):
                 raise FmuError(f"{self.binary.identifier}: {name} is a {variable.type}; only "
                                f"{self.REAL} and {self.INTEGER} variables are read")
-            if variable.type == self.INTEGER:
-                buffer = _FFI.new("int[1]")
-                self._check(self._lib.fmi2GetInteger(self._c, [variable.valueReference], 1, buffer),
-                            f"reading {name}")
-            else:
-                buffer = _FFI.new("double[1]")
-                self._check(self._lib.fmi2GetReal(self._c, [variable.valueReference], 1, buffer),
-                            f"reading {name}")
+            integer = variable.type == self.INTEGER
+            buffer = _FFI.new("int[1]" if integer else "double[1]")
+            self._check(self._get_values(integer, [variable.valueReference], buffer), f"reading {name}")
             values.append(buffer[0])
         return values
 
@@ -464,16 +471,15 @@ class PlantSession:
             raise FmuError(f"{self.binary.identifier}: integers are parameters, set them in reset()")
         if reals:
             vrs, numbers = zip(*reals)
-            self._check(self._lib.fmi2SetReal(self._c, vrs, len(vrs), numbers), "fmi2SetReal")
+            self._check(self._set_values(False, vrs, numbers), f"setting {', '.join(values)}")
 
     # -- model exchange --------------------------------------------------------------------
     def derivatives(self, x: Sequence[float]) -> list[float]:
         """f(x, inputs) of a model-exchange session, states ordered as the FMU declares them."""
         self._usable()
         self._x[0:self._nx] = x
-        self._check(self._lib.fmi2SetContinuousStates(self._c, self._x, self._nx),
-                    "fmi2SetContinuousStates")
-        self._check(self._lib.fmi2GetDerivatives(self._c, self._dx, self._nx), "fmi2GetDerivatives")
+        self._check(getattr(self._lib, self.SET_X)(self._c, self._x, self._nx), self.SET_X)
+        self._check(getattr(self._lib, self.GET_DX)(self._c, self._dx, self._nx), self.GET_DX)
         return _FFI.unpack(self._dx, self._nx)
 
     # -- FMU state -------------------------------------------------------------------------
@@ -481,15 +487,15 @@ class PlantSession:
         """A snapshot of the instance (fmi2GetFMUstate); give it to :meth:`restore_state`."""
         self._usable()
         state = _FFI.new("void**")
-        self._check(self._lib.fmi2GetFMUstate(self._c, state), "fmi2GetFMUstate")
+        self._check(getattr(self._lib, self.GET_STATE)(self._c, state), self.GET_STATE)
         return _Snapshot(self, state, self.time)
 
     def _free_state(self, pointer) -> None:
-        self._lib.fmi2FreeFMUstate(self._c, pointer)
+        getattr(self._lib, self.FREE_STATE)(self._c, pointer)
 
     def restore_state(self, snapshot: "_Snapshot") -> None:
         self._usable()
-        self._check(self._lib.fmi2SetFMUstate(self._c, snapshot.pointer[0]), "fmi2SetFMUstate")
+        self._check(getattr(self._lib, self.SET_STATE)(self._c, snapshot.pointer[0]), self.SET_STATE)
         self.time, self._start, self._k = snapshot.time, snapshot.time, 0
 
     # -- end -------------------------------------------------------------------------------
@@ -497,8 +503,8 @@ class PlantSession:
         """Terminate and free the instance; remove the extracted FMU if this session owns it."""
         if self._c is not None:
             if self._initialized:
-                self._lib.fmi2Terminate(self._c)
-            self._lib.fmi2FreeInstance(self._c)
+                getattr(self._lib, self.TERMINATE)(self._c)
+            getattr(self._lib, self.FREE)(self._c)
             self._c = None
         self._call = None
         if self._owns_binary:
@@ -517,6 +523,9 @@ class PlantSession3(PlantSession):
     the one-call helper knows the FMI 2.0 signatures only."""
 
     REAL, INTEGER = "Float64", "Int32"
+    GET_STATE, SET_STATE, FREE_STATE = "fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState"
+    SET_X, GET_DX = "fmi3SetContinuousStates", "fmi3GetContinuousStateDerivatives"
+    TERMINATE, FREE, DO_STEP = "fmi3Terminate", "fmi3FreeInstance", "fmi3DoStep"
 
     def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
         self.binary = binary
@@ -568,12 +577,7 @@ class PlantSession3(PlantSession):
             self._check(lib.fmi3Reset(c), "fmi3Reset")
         reals, integers = self._split(parameters or {}, starts=True)
         self._initialized = True
-        if reals:
-            vrs, values = zip(*reals)
-            self._check(lib.fmi3SetFloat64(c, vrs, len(vrs), values, len(values)), "setting start values")
-        if integers:
-            vrs, values = zip(*integers)
-            self._check(lib.fmi3SetInt32(c, vrs, len(vrs), values, len(values)), "setting start values")
+        self._set_starts(reals, integers)
         self._check(lib.fmi3EnterInitializationMode(c, False, 0.0, start_time, False, 0.0),
                     "fmi3EnterInitializationMode")
         self._check(lib.fmi3ExitInitializationMode(c), "fmi3ExitInitializationMode")
@@ -618,71 +622,13 @@ class PlantSession3(PlantSession):
             return 24 + status
         return 0
 
-    def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
-        which, status = divmod(failed, 8)
-        what = {1: f"setting {', '.join(self.inputs)} = {list(inputs)}",
-                2: f"fmi3DoStep at t = {self.time:.9g}", 3: "reading the outputs"}[which]
-        self._check(status, what)
+    def _get_values(self, integer: bool, vrs, buffer) -> int:
+        get = self._lib.fmi3GetInt32 if integer else self._lib.fmi3GetFloat64
+        return get(self._c, vrs, len(vrs), buffer, len(vrs))
 
-    def get(self, names: Iterable[str]) -> list[float]:
-        self._usable()
-        values = []
-        for name in names:
-            variable = self.binary.variable(name)
-            if variable.type == self.INTEGER:
-                buffer = _FFI.new("int[1]")
-                self._check(self._lib.fmi3GetInt32(self._c, [variable.valueReference], 1, buffer, 1),
-                            f"reading {name}")
-            elif variable.type == self.REAL:
-                buffer = _FFI.new("double[1]")
-                self._check(self._lib.fmi3GetFloat64(self._c, [variable.valueReference], 1, buffer, 1),
-                            f"reading {name}")
-            else:
-                raise FmuError(f"{self.binary.identifier}: {name} is a {variable.type}; only "
-                               f"{self.REAL} and {self.INTEGER} variables are read")
-            values.append(buffer[0])
-        return values
-
-    def set(self, values: Mapping[str, float]) -> None:
-        self._usable()
-        reals, integers = self._split(values)
-        if integers:
-            raise FmuError(f"{self.binary.identifier}: integers are parameters, set them in reset()")
-        if reals:
-            vrs, numbers = zip(*reals)
-            self._check(self._lib.fmi3SetFloat64(self._c, vrs, len(vrs), numbers, len(numbers)),
-                        "fmi3SetFloat64")
-
-    def derivatives(self, x: Sequence[float]) -> list[float]:
-        self._usable()
-        self._x[0:self._nx] = x
-        self._check(self._lib.fmi3SetContinuousStates(self._c, self._x, self._nx), "fmi3SetContinuousStates")
-        self._check(self._lib.fmi3GetContinuousStateDerivatives(self._c, self._dx, self._nx),
-                    "fmi3GetContinuousStateDerivatives")
-        return _FFI.unpack(self._dx, self._nx)
-
-    def save_state(self):
-        self._usable()
-        state = _FFI.new("void**")
-        self._check(self._lib.fmi3GetFMUState(self._c, state), "fmi3GetFMUState")
-        return _Snapshot(self, state, self.time)
-
-    def _free_state(self, pointer) -> None:
-        self._lib.fmi3FreeFMUState(self._c, pointer)
-
-    def restore_state(self, snapshot: "_Snapshot") -> None:
-        self._usable()
-        self._check(self._lib.fmi3SetFMUState(self._c, snapshot.pointer[0]), "fmi3SetFMUState")
-        self.time, self._start, self._k = snapshot.time, snapshot.time, 0
-
-    def close(self) -> None:
-        if self._c is not None:
-            if self._initialized:
-                self._lib.fmi3Terminate(self._c)
-            self._lib.fmi3FreeInstance(self._c)
-            self._c = None
-        if self._owns_binary:
-            self.binary.close()
+    def _set_values(self, integer: bool, vrs, values) -> int:
+        put = self._lib.fmi3SetInt32 if integer else self._lib.fmi3SetFloat64
+        return put(self._c, vrs, len(vrs), values, len(values))
 
 
 class _Snapshot:
