@@ -6,6 +6,7 @@ pendulum in radians does."""
 
 import re
 import shutil
+import textwrap
 import zipfile
 from pathlib import Path
 
@@ -20,20 +21,20 @@ from conftest import FOREIGN, build_foreign, run_cli
 
 DEG = 0.017453292519943295  # rad per degree
 
-SCALED = """\
-plant:
-  fmu: DegreePendulum.fmu
-  initial: {theta1: 0.1}
-  control_input: voltage
-  mapping:
-    states:
-      theta0: {variable: arm_angle, scale: %(deg)r}
-      dtheta0: {variable: arm_rate, scale: %(deg)r}
-      theta1: {variable: pend_angle, scale: %(deg)r}
-      dtheta1: {variable: pend_rate, scale: %(deg)r}
-      i: current
-    disturbances: {tau0: arm_torque, tau1: pend_torque}
+# a mapping file (regress --mapping) with explicit scales; indented, it is a plant.mapping
+MAPPING_FILE = """\
+control_input: voltage
+states:
+  theta0: {variable: arm_angle, scale: %(deg)r}
+  dtheta0: {variable: arm_rate, scale: %(deg)r}
+  theta1: {variable: pend_angle, scale: %(deg)r}
+  dtheta1: {variable: pend_rate, scale: %(deg)r}
+  i: current
+disturbances: {tau0: arm_torque, tau1: pend_torque}
 """ % {"deg": DEG}
+
+SCALED = ("plant:\n  fmu: DegreePendulum.fmu\n  initial: {theta1: 0.1}\n  control_input: voltage\n"
+          "  mapping:\n" + textwrap.indent(MAPPING_FILE.split("\n", 1)[1], "    "))
 
 DECLARED = """\
 plant:
@@ -147,18 +148,6 @@ def test_a_state_without_a_start_is_named(degrees, tmp_path, capsys):
     assert code == 2
     assert ("plant.initial.theta1: ForeignPendulum has no parameter 'pend_angle_start' to set the start "
             "of theta1 and its output 'pend_angle' takes no start value") in err
-
-
-MAPPING_FILE = """\
-control_input: voltage
-states:
-  theta0: {variable: arm_angle, scale: %(deg)r}
-  dtheta0: {variable: arm_rate, scale: %(deg)r}
-  theta1: {variable: pend_angle, scale: %(deg)r}
-  dtheta1: {variable: pend_rate, scale: %(deg)r}
-  i: current
-disturbances: {tau0: arm_torque, tau1: pend_torque}
-""" % {"deg": DEG}
 
 
 def test_regress_passes_the_degree_pendulum_once_its_extra_output_is_ignored(degrees, tmp_path):

@@ -16,6 +16,10 @@
 
 #define TIME_VR (INTEGER_VR_OFFSET + N_INTEGERS)
 
+/* Many FMI 3.0 arguments mean nothing to this model (clocks, early return, the values of
+ * types it never declares): they are not used. */
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+
 typedef struct {
     fmi2Component c;
     fmi3InstanceEnvironment env;
@@ -29,7 +33,6 @@ typedef struct {
 static void relay(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
                   fmi2String category, fmi2String message, ...) {
     const Wrapper *w = (const Wrapper *)env;
-    (void)name;
     if (w && w->log) w->log(w->env, (fmi3Status)status, category, message);
 }
 
@@ -69,9 +72,6 @@ const char *fmi3GetVersion(void) { return fmi3Version; }
 
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[]) {
-    (void)loggingOn;
-    (void)nCategories;
-    (void)categories;
     return instance ? fmi3OK : fmi3Error;
 }
 
@@ -79,9 +79,6 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
                                           fmi3String resourcePath, fmi3Boolean visible,
                                           fmi3Boolean loggingOn, fmi3InstanceEnvironment instanceEnvironment,
                                           fmi3LogMessageCallback logMessage) {
-    (void)resourcePath;
-    (void)visible;
-    (void)loggingOn;
     return instantiate(instanceName, instantiationToken, 1, instanceEnvironment, logMessage);
 }
 
@@ -94,12 +91,6 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                          fmi3InstanceEnvironment instanceEnvironment,
                                          fmi3LogMessageCallback logMessage,
                                          fmi3IntermediateUpdateCallback intermediateUpdate) {
-    (void)resourcePath;
-    (void)visible;
-    (void)loggingOn;
-    (void)earlyReturnAllowed;
-    (void)requiredIntermediateVariables;
-    (void)intermediateUpdate;
     if (eventModeUsed || nRequiredIntermediateVariables > 0) {
         if (logMessage)
             logMessage(instanceEnvironment, fmi3Error, "logStatusError",
@@ -117,14 +108,6 @@ fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3Stri
                                                fmi3ClockUpdateCallback clockUpdate,
                                                fmi3LockPreemptionCallback lockPreemption,
                                                fmi3UnlockPreemptionCallback unlockPreemption) {
-    (void)instanceName;
-    (void)instantiationToken;
-    (void)resourcePath;
-    (void)visible;
-    (void)loggingOn;
-    (void)clockUpdate;
-    (void)lockPreemption;
-    (void)unlockPreemption;
     if (logMessage)
         logMessage(instanceEnvironment, fmi3Error, "logStatusError",
                    "this FMU has no scheduled execution interface");
@@ -218,9 +201,7 @@ fmi3Status fmi3SetInt32(fmi3Instance instance, const fmi3ValueReference valueRef
     return (fmi3Status)fmi2SetInteger(C(instance), valueReferences, nValueReferences, (const fmi2Integer *)values);
 }
 
-/* The types this model never declares: only empty requests succeed (the values are never
- * touched, hence the unused parameters). */
-#pragma GCC diagnostic ignored "-Wunused-parameter"
+/* The types this model never declares: only empty requests succeed. */
 #define NO_VARIABLES(function, type, ...)                                                         \
     fmi3Status function(fmi3Instance instance, const fmi3ValueReference valueReferences[],         \
                         size_t nValueReferences, __VA_ARGS__) {                                     \
@@ -265,8 +246,6 @@ NO_VARIABLES(fmi3SetShiftFraction, "Clock", const fmi3UInt64 counters[], const f
 
 fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance instance, fmi3ValueReference valueReference,
                                                size_t *nDependencies) {
-    (void)valueReference;
-    (void)nDependencies;
     return refuse(instance, "variable dependencies are not provided");
 }
 
@@ -274,12 +253,6 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference
                                        size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
                                        size_t elementIndicesOfIndependents[],
                                        fmi3DependencyKind dependencyKinds[], size_t nDependencies) {
-    (void)dependent;
-    (void)elementIndicesOfDependent;
-    (void)independents;
-    (void)elementIndicesOfIndependents;
-    (void)dependencyKinds;
-    (void)nDependencies;
     return refuse(instance, "variable dependencies are not provided");
 }
 
@@ -316,14 +289,6 @@ fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueRe
                                         size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns,
                                         const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],
                                         size_t nSensitivity) {
-    (void)unknowns;
-    (void)nUnknowns;
-    (void)knowns;
-    (void)nKnowns;
-    (void)seed;
-    (void)nSeed;
-    (void)sensitivity;
-    (void)nSensitivity;
     return refuse(instance, "directional derivatives are not provided");
 }
 
@@ -331,14 +296,6 @@ fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueRefere
                                     size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns,
                                     const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],
                                     size_t nSensitivity) {
-    (void)unknowns;
-    (void)nUnknowns;
-    (void)knowns;
-    (void)nKnowns;
-    (void)seed;
-    (void)nSeed;
-    (void)sensitivity;
-    (void)nSensitivity;
     return refuse(instance, "adjoint derivatives are not provided");
 }
 
@@ -444,11 +401,6 @@ fmi3Status fmi3EnterStepMode(fmi3Instance instance) {
 fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                                     size_t nValueReferences, const fmi3Int32 orders[], fmi3Float64 values[],
                                     size_t nValues) {
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)orders;
-    (void)values;
-    (void)nValues;
     return refuse(instance, "output derivatives are not supported");
 }
 
@@ -473,7 +425,5 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
 
 fmi3Status fmi3ActivateModelPartition(fmi3Instance instance, fmi3ValueReference clockReference,
                                       fmi3Float64 activationTime) {
-    (void)clockReference;
-    (void)activationTime;
     return refuse(instance, "this FMU has no scheduled execution interface");
 }

@@ -154,17 +154,7 @@ def generate_model_description(model: Model, guid: str, sources: list[str]) -> s
         for name in sources:
             if name.endswith(".c"):
                 ET.SubElement(files, "File", {"name": name})
-    units = sorted({v.unit for v in model.reals if v.unit})
-    if units:
-        definitions = ET.SubElement(root, "UnitDefinitions")
-        for unit in units:
-            ET.SubElement(definitions, "Unit", {"name": unit})
-    categories = ET.SubElement(root, "LogCategories")
-    for name in ("logStatusError", "logAll"):
-        ET.SubElement(categories, "Category", {"name": name})
-    step = model_period(model)
-    ET.SubElement(root, "DefaultExperiment",
-                  {"startTime": "0.0", "stopTime": _number(100 * step), "stepSize": _number(step)})
+    _units_logs_experiment(root, model)
 
     variables = ET.SubElement(root, "ModelVariables")
     index = {}
@@ -215,6 +205,22 @@ def generate_model_description(model: Model, guid: str, sources: list[str]) -> s
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
+def _units_logs_experiment(root: ET.Element, model: Model) -> None:
+    """The elements both FMI versions write alike, in this order: unit definitions, log
+    categories, the default experiment."""
+    units = sorted({v.unit for v in model.reals if v.unit})
+    if units:
+        definitions = ET.SubElement(root, "UnitDefinitions")
+        for unit in units:
+            ET.SubElement(definitions, "Unit", {"name": unit})
+    categories = ET.SubElement(root, "LogCategories")
+    for name in ("logStatusError", "logAll"):
+        ET.SubElement(categories, "Category", {"name": name})
+    step = model_period(model)
+    ET.SubElement(root, "DefaultExperiment",
+                  {"startTime": "0.0", "stopTime": _number(100 * step), "stepSize": _number(step)})
+
+
 def generate_model_description_3(model: Model, guid: str) -> str:
     """``modelDescription.xml`` (FMI 3.0): the same variables with the same value references
     as the FMI 2.0 description, as Float64 and Int32, plus the independent variable ``time``."""
@@ -228,17 +234,7 @@ def generate_model_description_3(model: Model, guid: str) -> str:
         ET.SubElement(root, "ModelExchange", capabilities)
     ET.SubElement(root, "CoSimulation", {**capabilities, "canHandleVariableCommunicationStepSize": "true",
                                          "hasEventMode": "false"})
-    units = sorted({v.unit for v in model.reals if v.unit})
-    if units:
-        definitions = ET.SubElement(root, "UnitDefinitions")
-        for unit in units:
-            ET.SubElement(definitions, "Unit", {"name": unit})
-    categories = ET.SubElement(root, "LogCategories")
-    for name in ("logStatusError", "logAll"):
-        ET.SubElement(categories, "Category", {"name": name})
-    step = model_period(model)
-    ET.SubElement(root, "DefaultExperiment",
-                  {"startTime": "0.0", "stopTime": _number(100 * step), "stepSize": _number(step)})
+    _units_logs_experiment(root, model)
     variables = ET.SubElement(root, "ModelVariables")
     time_vr = len(model.reals) + len(model.integers)  # TIME_VR of fmi3_glue.c
     ET.SubElement(variables, "Float64", {"name": "time", "valueReference": str(time_vr),

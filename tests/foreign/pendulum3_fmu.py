@@ -9,7 +9,7 @@ substeps per doStep.
 
 from pythonfmu3 import Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Variability, Float64, ModelExchange, Unit
 
-from pendulum_physics import INPUTS, PHYSICS, STATES, rates
+from pendulum_physics import INPUTS, PHYSICS, STATES, rates, rk4
 
 UNITS = {"arm_angle": "rad", "arm_rate": "rad/s", "pend_angle": "rad", "pend_rate": "rad/s",
          "current": "A", "voltage": "V", "arm_torque": "N.m", "pend_torque": "N.m"}
@@ -54,13 +54,7 @@ class ForeignPendulum3(Fmi3Slave, ModelExchange):
 
     def do_step(self, current_time, step_size):
         x = self._state()
-        h = step_size / 20
-        for _ in range(20):
-            k1 = self._rates(x)
-            k2 = self._rates(tuple(v + 0.5 * h * k for v, k in zip(x, k1)))
-            k3 = self._rates(tuple(v + 0.5 * h * k for v, k in zip(x, k2)))
-            k4 = self._rates(tuple(v + h * k for v, k in zip(x, k3)))
-            x = tuple(v + h / 6 * (p + 2 * q + 2 * s + t) for v, p, q, s, t in zip(x, k1, k2, k3, k4))
+        x = rk4(self, x, tuple(getattr(self, n) for n in INPUTS), step_size)
         for name, value in zip(STATES, x):
             setattr(self, name, value)
         self.time = current_time + step_size

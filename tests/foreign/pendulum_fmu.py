@@ -7,7 +7,7 @@ import math
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
 
-from pendulum_physics import INPUTS, PHYSICS, STATES, rates
+from pendulum_physics import INPUTS, PHYSICS, STATES, rk4
 
 
 class ForeignPendulum(Fmi2Slave):
@@ -49,19 +49,10 @@ class ForeignPendulum(Fmi2Slave):
         for name in STATES:
             setattr(self, name, getattr(self, f"{name}_0"))
 
-    def _rates(self, x):
-        return rates(self, x, (self.voltage, self.arm_torque, self.pend_torque))
-
     def do_step(self, current_time, step_size):
         scale = math.pi / 180.0 if self.DEGREES else 1.0
         x = tuple(getattr(self, n) * (1.0 if n == "current" else scale) for n in STATES)
-        h = step_size / 20
-        for _ in range(20):
-            k1 = self._rates(x)
-            k2 = self._rates(tuple(v + 0.5 * h * k for v, k in zip(x, k1)))
-            k3 = self._rates(tuple(v + 0.5 * h * k for v, k in zip(x, k2)))
-            k4 = self._rates(tuple(v + h * k for v, k in zip(x, k3)))
-            x = tuple(v + h / 6 * (p + 2 * q + 2 * s + t) for v, p, q, s, t in zip(x, k1, k2, k3, k4))
+        x = rk4(self, x, tuple(getattr(self, n) for n in INPUTS), step_size)
         for name, value in zip(STATES, x):
             setattr(self, name, value / (1.0 if name == "current" else scale))
         return True

@@ -39,3 +39,15 @@ def rates(p, x, u):
     det = a * d - b * b
     di = (voltage - p.resistance * i - p.motor_constant * p.gear_ratio * w0) / p.inductance
     return (w0, (d * f0 - b * f1) / det, w1, (a * f1 - b * f0) / det, di)
+
+
+def rk4(p, x, u, step, substeps=20):
+    """The state after ``step`` seconds of classical RK4 in ``substeps`` substeps, inputs held."""
+    h = step / substeps
+    for _ in range(substeps):
+        k1 = rates(p, x, u)
+        k2 = rates(p, tuple(v + 0.5 * h * k for v, k in zip(x, k1)), u)
+        k3 = rates(p, tuple(v + 0.5 * h * k for v, k in zip(x, k2)), u)
+        k4 = rates(p, tuple(v + h * k for v, k in zip(x, k3)), u)
+        x = tuple(v + h / 6 * (a + 2 * b + 2 * c + d) for v, a, b, c, d in zip(x, k1, k2, k3, k4))
+    return x
