@@ -165,8 +165,8 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     outputs, signals, states, state_outputs, control_input, inputs, disturbance_names = view
     if problems:  # every other name is a view name: nothing more can be checked without it
         raise ConfigError(problems)
-    conversions = _conversions(description, scenario.mapping, outputs + list(inputs.values())
-                               + [control_input], fail)
+    conversions = _conversions(description, scenario.mapping,
+                               outputs + list(inputs.values()) + [control_input])
     for name, value in scenario.initial.items():
         if name not in states:
             fail(f"plant.initial.{name}", f"not a state (states: {', '.join(states)})")
@@ -367,7 +367,7 @@ def _si(base) -> str:
     return ".".join(up or (["1"] if down else [])) + "".join("/" + d for d in down)
 
 
-def _conversions(description, mapping, names, fail) -> dict[str, tuple[float, float]]:
+def _conversions(description, mapping, names) -> dict[str, tuple[float, float]]:
     """FMU variable -> (scale, offset) with view value = scale * FMU value + offset: from the
     mapping, else from the unit the variable declares; only the variables that need one."""
     variables = {v.name: v for v in description.modelVariables}
