@@ -1,5 +1,6 @@
-"""Multi-objective tuning: Pareto fronts (ParEGO on the constrained BO), their files, terms
-relative to a baseline, and fronts of several runs compared."""
+"""Multi-objective tuning: Pareto fronts (expected hypervolume improvement, or ParEGO, on the
+constrained BO), their files, terms relative to a baseline, and fronts of several runs
+compared."""
 
 import csv
 import json
@@ -9,6 +10,8 @@ import pytest
 import yaml
 
 from furuta_cosim.tuning import pareto
+from furuta_cosim.tuning.mobo import HypervolumeBO
+from furuta_cosim.tuning.optimizers import RandomSearch, latin_hypercube
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
@@ -64,6 +67,58 @@ def test_nondominated_points_and_hypervolume_by_hand():
     samples = rng.random((200_000, 3))
     covered = np.any(np.all(samples[:, None, :] >= front[None, :, :], axis=2), axis=1).mean()
     assert pareto.hypervolume(front, (1, 1, 1)) == pytest.approx(covered, abs=5e-3)
+
+
+def test_the_improvement_of_a_point_is_the_hypervolume_it_adds():
+    front, reference = [(0, 1), (0.5, 0.5), (1, 0)], (2, 2)
+    # by hand: (0.2, 0.2) adds the two unit-less boxes [0.2, 0.5] x [0.2, 0.5] and
+    # [0.5, 1] x [0.2, 0.5] and [0.2, 0.5] x [0.5, 1]
+    assert pareto.improvement_2d(front, reference, [(0.2, 0.2)])[0] == pytest.approx(
+        0.3 * 0.3 + 0.5 * 0.3 + 0.3 * 0.5)
+    # dominated, on the front, or beyond the reference: nothing
+    assert pareto.improvement_2d(front, reference, [(0.6, 0.6), (0.5, 0.5), (2.5, 0), (0, 3)]).tolist() \
+        == [0, 0, 0, 0]
+    # an empty front: the whole box up to the reference
+    assert pareto.improvement_2d([], reference, [(1, 1.5)])[0] == pytest.approx(0.5)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        front, points = rng.random((int(rng.integers(1, 9)), 2)), rng.random((10, 2)) * 1.4 - 0.2
+        base = pareto.hypervolume(front, (1.1, 1.2))
+        gained = [pareto.hypervolume(np.vstack([front, p]), (1.1, 1.2)) - base for p in points]
+        assert pareto.improvement_2d(front, (1.1, 1.2), points) == pytest.approx(gained, abs=1e-12)
+
+
+def _constrained_zdt1(x):
+    """ZDT1 (Zitzler, Deb and Thiele 2000) in four variables, feasible for x1 >= 0.6: a front
+    of known shape with a constraint the search must learn."""
+    x = np.asarray(x)
+    g = 1 + 9 * np.mean(x[1:])
+    criteria = {"f1": float(x[0]), "f2": float(g * (1 - np.sqrt(x[0] / g)))}
+    margin = float(0.6 - x[1])
+    return {"x": list(map(float, x)), "criteria": criteria, "feasible": margin <= 0,
+            "margin": margin, "value": None, "objective": sum(criteria.values())}
+
+
+def _front_volume(records):
+    front = [pareto.criteria_of(records[k], ["f1", "f2"]) for k in pareto.front_of(records, ["f1", "f2"])]
+    return pareto.hypervolume(front, (1.1, 11.0))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_expected_hypervolume_improvement_beats_random_search(seed):
+    """On a known constrained problem the BO's front covers more than random search's at the
+    same budget (1.16 to 1.40 times on seeds 0-5), and most of its proposals are feasible once
+    it has learned the constraint (80-95 %, where 35-45 % of random points are)."""
+    bounds, calls = [(0.0, 1.0)] * 4, 40
+    bo = HypervolumeBO(bounds, seed, ["f1", "f2"], xi=0.0, n_initial_points=10, batch=2)
+    records = [_constrained_zdt1(x) for x in latin_hypercube(10, bounds, seed)]
+    for number in range((calls - 10) // 2):
+        records += [_constrained_zdt1(x) for x in bo.propose(records, 10, number).points(2)]
+    search = RandomSearch(bounds, seed)
+    randoms = [_constrained_zdt1(search.point(k)) for k in range(calls)]
+    assert len(records) == calls
+    assert _front_volume(records) > 1.1 * _front_volume(randoms)
+    assert sum(r["feasible"] for r in records[20:]) >= 0.7 * len(records[20:])
 
 
 def test_the_knee_is_where_the_front_bends():
@@ -148,9 +203,9 @@ def strip(records):
     return [{k: v for k, v in r.items() if k not in ("wall_time", "worker")} for r in records]
 
 
-@pytest.mark.parametrize("method", ["bo", "random"])
-def test_a_tradeoff_history_depends_on_neither_workers_nor_an_interruption(tmp_path, method):
-    spec = load_spec(spec_file(tmp_path))
+@pytest.mark.parametrize("method, front", [("bo", "auto"), ("bo", "parego"), ("random", "auto")])
+def test_a_tradeoff_history_depends_on_neither_workers_nor_an_interruption(tmp_path, method, front):
+    spec = load_spec(spec_file(tmp_path, SPEC.replace("batch: 2}", f"batch: 2, front: {front}}}")))
     tune(spec, tmp_path / "one", method=method, workers=1)
     tune(spec, tmp_path / "two", method=method, workers=2)
     assert strip(history(tmp_path / "one")) == strip(history(tmp_path / "two"))
@@ -186,6 +241,24 @@ def test_bad_tradeoff_specs_are_one_line(tmp_path, capsys, change, key):
     assert code == 2 and len(lines) == 1 and "Traceback" not in err, lines
     assert lines[0].startswith(f"error: {path}: {key}"), lines[0]
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("front, expected", [
+    ("nsga2", "expected one of auto, ehvi, parego"),
+    ("ehvi", "ehvi computes the hypervolume of two criteria, this objective has 3"),
+])
+def test_a_front_search_that_cannot_run_is_one_line(tmp_path, capsys, front, expected):
+    data = yaml.safe_load(SPEC)
+    data["optimizer"]["front"] = front
+    data["objective"]["criteria"].append({"name": "peak", "terms": [{"metric": "u.peak_abs"}]})
+    path = spec_file(tmp_path, yaml.safe_dump(data), "bad.yaml")
+    code, _, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, lines
+    assert lines[0].startswith(f"error: {path}: optimizer.front") and expected in lines[0], lines[0]
+    # three criteria are searched by ParEGO when nothing is said
+    del data["optimizer"]["front"]
+    assert load_spec(spec_file(tmp_path, yaml.safe_dump(data), "auto.yaml")).optimizer.front == "auto"
 
 
 def test_differential_evolution_refuses_a_tradeoff(tmp_path, capsys):

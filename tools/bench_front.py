@@ -2,13 +2,15 @@
 at the same budget, against a reference front from a long run, in one run.
 
     python tools/bench_front.py [--specs tradeoff tradeoff-static] [--seeds 10] [--calls 150]
-                                [--workers 2] [--methods ours,global,random] [--reference 600]
-                                [-o FOLDER]
+                                [--workers 2] [--methods ours,parego,global,random]
+                                [--reference 600] [-o FOLDER]
 
 Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``):
 
-- ``ours``: ``bo`` as shipped (ParEGO scalarizations on the constrained BO, trust region);
-- ``global``: the same with ``optimizer.region: global``;
+- ``ours``: ``bo`` as shipped (expected hypervolume improvement on the constrained BO);
+- ``parego``: ``optimizer.front: parego`` (ParEGO scalarizations, trust region), the search
+  before expected hypervolume improvement;
+- ``global``: ParEGO with ``optimizer.region: global``;
 - ``random``: random search, same budget.
 
 The reference front is the non-dominated set of every point of every run above and of one
@@ -40,13 +42,13 @@ from furuta_cosim.tuning.front import reach
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
-METHODS = ("ours", "global", "random")
+METHODS = ("ours", "parego", "global", "random")
 
 
 def run(spec, folder: Path, method: str, seed: int, calls: int, workers: int) -> list[dict]:
-    if method in ("ours", "global"):
-        region = "trust" if method == "ours" else "global"
-        spec = replace(spec, optimizer=replace(spec.optimizer, region=region))
+    if method in ("parego", "global"):
+        region = "trust" if method == "parego" else "global"
+        spec = replace(spec, optimizer=replace(spec.optimizer, region=region, front="parego"))
     if not (folder / "front.json").exists():
         tune(spec, folder, method="random" if method == "random" else "bo", n_calls=calls,
              seed=seed, workers=workers)

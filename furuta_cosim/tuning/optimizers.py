@@ -45,6 +45,8 @@ CANDIDATES = 2048
 REGION_START, REGION_MIN, REGION_MAX = 0.8, 0.5**7, 1.6
 SUCCESSES = 3
 REGIONS = ("trust", "global")
+# a tradeoff's search: auto is ehvi for two criteria, parego for more (tuning/mobo.py, pareto.py)
+FRONTS = ("auto", "ehvi", "parego")
 # the best this many candidates by acquisition are checked with the exact cheap constraint
 SCREENED = 64
 LENGTH_BOUNDS = (1e-2, 1e2)

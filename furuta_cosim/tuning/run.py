@@ -379,6 +379,7 @@ def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[floa
 
 def _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, progress, log):
     from furuta_cosim.tuning import pareto
+    from furuta_cosim.tuning.mobo import HypervolumeBO
     from furuta_cosim.tuning.optimizers import ConstrainedBO, batches
 
     settings, records = spec.optimizer, history.records
@@ -392,17 +393,19 @@ def _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, prog
     if todo:  # every point is known: all at once, whatever the workers
         _evaluate(executor, evaluator, history, [x for x, _ in todo], clock, [o for _, o in todo])
         _report(progress, history, n_calls, clock)
-    optimizer = ConstrainedBO(evaluator.space.bounds, seed, xi=settings.xi,
-                              n_initial_points=len(design), batch=batch,
-                              gp_restarts=settings.gp_restarts, region=settings.region,
-                              screen=_stable(evaluator))
+    names = [c.name for c in spec.objective.criteria]
+    parego = spec.objective.type == "tradeoff" and front_search(spec) == "parego"
+    kind = HypervolumeBO if spec.objective.type == "tradeoff" and not parego else ConstrainedBO
+    optimizer = kind(evaluator.space.bounds, seed, xi=settings.xi, n_initial_points=len(design),
+                     batch=batch, gp_restarts=settings.gp_restarts, region=settings.region,
+                     screen=_stable(evaluator), **({"names": names} if kind is HypervolumeBO else {}))
     for number, first, count in batches(len(design), batch, n_calls):
         if first + count <= len(records):
             continue  # evaluated before a resume
         started = time.perf_counter()
         seen = records[:first]
-        if spec.objective.type == "tradeoff":  # ParEGO: this batch's scalarization
-            seen = pareto.scalarized(seen, [c.name for c in spec.objective.criteria], seed, number)
+        if parego:  # this batch's scalarization
+            seen = pareto.scalarized(seen, names, seed, number)
         proposal = optimizer.propose(seen, len(design), number)
         points = proposal.points(count)
         xs, pending = [], []
@@ -424,6 +427,14 @@ def _bayes(spec, evaluator, executor, history, n_calls, seed, batch, clock, prog
         _collect(executor, evaluator, history, fresh, pending, clock,
                  [proposal.origin] * len(fresh), proposal.surrogate)
         _report(progress, history, n_calls, clock)
+
+
+def front_search(spec) -> str:
+    """How ``bo`` searches a tradeoff: ``optimizer.front``, auto meaning ehvi for two criteria
+    and parego for more."""
+    if spec.optimizer.front != "auto":
+        return spec.optimizer.front
+    return "ehvi" if len(spec.objective.criteria) == 2 else "parego"
 
 
 def _stable(evaluator):

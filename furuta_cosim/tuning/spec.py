@@ -100,6 +100,7 @@ class OptimizerSettings:
     batch: int = 1
     gp_restarts: int = 0
     region: str = "trust"               # bo's candidates: a trust region, or the whole space
+    front: str = "auto"                 # a tradeoff's search: ehvi (two criteria) or parego
     initial: tuple[str, ...] = ()       # controller files entering the initial design
     warm_start: bool = True             # the spec's baselines enter the initial design too
 
@@ -188,6 +189,10 @@ def load_spec(name: str | Path) -> TuningSpec:
     if objective and objective.type == "tradeoff" and optimizer and optimizer.method == "de":
         check.fail("optimizer.method", "de minimizes one number; a tradeoff objective is searched "
                                        "by bo or random")
+    if objective and objective.type == "tradeoff" and optimizer and optimizer.front == "ehvi" \
+            and len(objective.criteria) != 2:
+        check.fail("optimizer.front", f"ehvi computes the hypervolume of two criteria, this objective "
+                                      f"has {len(objective.criteria)}: use parego (or auto)")
     if optimizer and optimizer.batch > optimizer.n_calls:
         check.fail("optimizer.batch", f"larger than the budget optimizer.n_calls ({optimizer.n_calls})")
     if optimizer and optimizer.method == "bo" and optimizer.n_initial_points > optimizer.n_calls:
@@ -490,15 +495,16 @@ _OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1, maximum=MAX_CALLS
 
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
-    from furuta_cosim.tuning.optimizers import REGIONS
+    from furuta_cosim.tuning.optimizers import FRONTS, REGIONS
 
     defaults = OptimizerSettings()
-    section = check.mapping(value, "optimizer", optional=("method", "region", "initial",
+    section = check.mapping(value, "optimizer", optional=("method", "region", "front", "initial",
                                                           "warm_start", *_OPTIMIZER_NUMBERS))
     if section is None:
         return None
     values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", METHODS),
-              "region": check.string(section.get("region", defaults.region), "optimizer.region", REGIONS)}
+              "region": check.string(section.get("region", defaults.region), "optimizer.region", REGIONS),
+              "front": check.string(section.get("front", defaults.front), "optimizer.front", FRONTS)}
     for key, rules in _OPTIMIZER_NUMBERS.items():
         values[key] = check.number(section.get(key, getattr(defaults, key)), f"optimizer.{key}", **rules)
     values["warm_start"] = section.get("warm_start", defaults.warm_start)
