@@ -174,6 +174,7 @@ def test_a_tradeoff_run_writes_its_front(tmp_path, capsys):
         assert (folder / name).stat().st_size > 0
     summary = (folder / "summary.md").read_text()
     assert "Pareto front:" in summary and "Knee: evaluation" in summary and "lqr-paper (effort 1" in summary
+    assert "- method: bo (expected hypervolume improvement), seed 0" in summary
     # the LQR scored alike is the unit of both criteria
     assert front["baselines"]["lqr-paper"]["criteria"] == {"effort": 1.0, "tracking": 1.0}
     # the run's report page shows the trade-off beside the convergence

@@ -519,6 +519,9 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
                 "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
                 "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines,
                 "warnings": warnings}
+    if method == "bo" and spec.objective.type == "tradeoff":
+        document["search"] = {"ehvi": "expected hypervolume improvement",
+                              "parego": "ParEGO scalarizations"}[front_search(spec)]
     if best is not None:
         prefilter = save_scored(evaluator, best, folder / "best.yaml", f"{spec.name}-best",
                                 f"best of tuning {spec.name} ({method}, seed {seed})", method, seed)
@@ -540,7 +543,8 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
 def summary_text(spec: TuningSpec, document: dict) -> str:
     """summary.md: the run's summary document in words (what ``tune`` prints)."""
     lines = [f"# Tuning {spec.name}", "", spec.description, "",
-             f"- method: {document['method']}, seed {document['seed']}, {document['evaluations']} "
+             f"- method: {document['method']}" + (f" ({document['search']})" if document.get("search") else "")
+             + f", seed {document['seed']}, {document['evaluations']} "
              f"evaluations, {document['feasible']} feasible, {document['failed']} failed",
              f"- objective: {document['objective']}" + _described(spec.objective),
              f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
