@@ -206,9 +206,12 @@ def test_an_interrupted_run_leaves_no_half_written_file(tmp_path, sig):
     temporary.mkdir()
     import os
 
+    # Ctrl-C as at a terminal: a test run started in the background (`cmd &` in a script)
+    # inherits SIGINT ignored, and Python then never turns it into KeyboardInterrupt
     process = subprocess.Popen([sys.executable, "-m", "furuta_cosim.cli", "simulate", str(scenario),
                                 "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True, env={**os.environ, "TMPDIR": str(temporary)})
+                               text=True, env={**os.environ, "TMPDIR": str(temporary)},
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list(out.glob(".*.partial")):
         time.sleep(0.002)  # wait until the 300,000-line trace is being written
