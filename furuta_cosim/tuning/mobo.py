@@ -27,8 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from furuta_cosim.tuning import pareto
-from furuta_cosim.tuning.optimizers import (CANDIDATES, REFIT_EVERY, ConstrainedBO, Proposal,
-                                            _number, _Surrogate, _theta)
+from furuta_cosim.tuning.optimizers import CANDIDATES, ConstrainedBO, Proposal, _Surrogate, _theta
 
 # posterior draws per candidate in the Monte Carlo estimate
 DRAWS = 64
@@ -47,17 +46,11 @@ class HypervolumeBO(ConstrainedBO):
         self.names = list(names)
 
     def propose(self, records: list[dict], start: int, number: int) -> Proposal:
-        rng = np.random.default_rng([self.seed, 2, number])
-        fit_seed = int(rng.integers(2**31 - 1))
-        X = np.array([self._unit(r["x"]) for r in records])
-        previous = records[-1].get("surrogate") if records else None
-        previous = previous if isinstance(previous, dict) else {}
-        refit = number % REFIT_EVERY == 0
-        margins = np.array([_number(r.get("margin"), 1.0) for r in records])
-        feasibility = _Surrogate(X, margins, _theta(previous.get("feasibility"), self.d), refit,
-                                 self.restarts, fit_seed)
+        b = self._batch(records, number)
+        rng, X, feasibility = b.rng, b.X, b.feasibility
         rows = [pareto.criteria_of(r, self.names) for r in records]
-        front = [rows[k] for k in pareto.front_of(records, self.names)]
+        on_front = pareto.front_of(records, self.names)
+        front = [rows[k] for k in on_front]
         known = [k for k, row in enumerate(rows) if row is not None]
         criteria, reference = [], None
         if front and len(known) >= 2:
@@ -65,15 +58,14 @@ class HypervolumeBO(ConstrainedBO):
             low, high = F.min(axis=0), F.max(axis=0)
             reference = high + 0.1 * np.where(high > low, high - low, np.abs(high) + 1e-9)
             cap = reference + (reference - low)
-            thetas = previous.get("criteria") if isinstance(previous.get("criteria"), list) else []
+            thetas = b.previous.get("criteria") if isinstance(b.previous.get("criteria"), list) else []
             for j in range(len(self.names)):
                 y = np.minimum([rows[k][j] for k in known], cap[j])
                 theta = _theta(thetas[j], self.d) if j < len(thetas) else None
-                criteria.append(_Surrogate(X[known], y, theta, refit, self.restarts, fit_seed))
+                criteria.append(_Surrogate(X[known], y, theta, b.refit, self.restarts, b.fit_seed))
         draws = rng.standard_normal((DRAWS, len(self.names)))
         believed = [list(row) for row in front]
-        centers = (np.array([self._unit(records[k]["x"]) for k in pareto.front_of(records, self.names)])
-                   if front else X[[int(np.argmin(margins))]])
+        centers = X[on_front] if front else X[[int(np.argmin(b.margins))]]
 
         def next_point() -> list[float]:
             C = self._around(centers, rng)

@@ -65,6 +65,19 @@ class Proposal:
             yield self._next()
 
 
+@dataclass
+class _Batch:
+    """What every proposal of a batch starts from (ConstrainedBO._batch)."""
+
+    rng: np.random.Generator    # the batch's random stream
+    fit_seed: int               # the GPs' random state
+    X: np.ndarray               # the history on the unit cube
+    previous: dict              # the hyperparameters the batch before used
+    refit: bool                 # whether this batch fits them again
+    margins: np.ndarray         # the feasibility margins
+    feasibility: "_Surrogate"   # and their GP
+
+
 def latin_hypercube(n: int, bounds, seed: int) -> list[list[float]]:
     """``n`` points of a Latin hypercube over ``bounds`` (scipy's, seeded): the initial design."""
     if n <= 0:
@@ -183,22 +196,15 @@ class ConstrainedBO:
         """Batch ``number`` (0 = the first after the initial design) from the ``records``
         before it; ``start``: where the batches begin in the history. The surrogates are
         fitted here; each point is computed when asked for."""
-        rng = np.random.default_rng([self.seed, 2, number])
-        fit_seed = int(rng.integers(2**31 - 1))
-        X = np.array([self._unit(r["x"]) for r in records])
-        previous = records[-1].get("surrogate") if records else None
-        previous = previous if isinstance(previous, dict) else {}
-        refit = number % REFIT_EVERY == 0
-        margins = np.array([_number(r.get("margin"), 1.0) for r in records])
-        feasibility = _Surrogate(X, margins, _theta(previous.get("feasibility"), self.d), refit,
-                                 self.restarts, fit_seed)
+        b = self._batch(records, number)
+        rng, X, margins, feasibility = b.rng, b.X, b.margins, b.feasibility
         valued = [k for k, r in enumerate(records) if _finite(r.get("value"))]
         best = _best(records)
         objective = None
         if best is not None and len(valued) >= 2:
             objective = _Surrogate(X[valued], [records[k]["value"] for k in valued],
-                                   _theta(previous.get("objective"), self.d), refit,
-                                   self.restarts, fit_seed)
+                                   _theta(b.previous.get("objective"), self.d), b.refit,
+                                   self.restarts, b.fit_seed)
         length, _ = _region(records, start, self.batch, self.d)
         if best is not None:
             center = self._unit(best["x"])
@@ -217,6 +223,21 @@ class ConstrainedBO:
                      "region": length if self.region == "trust" else None}
         origin = "bo" if best is not None else "bo (no feasible point yet: feasibility only)"
         return Proposal(origin, surrogate, next_point)
+
+    def _batch(self, records: list[dict], number: int) -> _Batch:
+        """What every proposal of batch ``number`` starts from: its random stream, the history
+        on the unit cube, the hyperparameters the batch before used, whether to refit them,
+        the feasibility margins and their GP."""
+        rng = np.random.default_rng([self.seed, 2, number])
+        fit_seed = int(rng.integers(2**31 - 1))
+        X = np.array([self._unit(r["x"]) for r in records])
+        previous = records[-1].get("surrogate") if records else None
+        previous = previous if isinstance(previous, dict) else {}
+        refit = number % REFIT_EVERY == 0
+        margins = np.array([_number(r.get("margin"), 1.0) for r in records])
+        feasibility = _Surrogate(X, margins, _theta(previous.get("feasibility"), self.d), refit,
+                                 self.restarts, fit_seed)
+        return _Batch(rng, fit_seed, X, previous, refit, margins, feasibility)
 
     def _candidates(self, center, length, weights, rng, n) -> np.ndarray:
         if self.region == "global":
