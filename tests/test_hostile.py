@@ -87,6 +87,28 @@ def test_a_specs_relative_controllers_resolve_beside_it(tmp_path, monkeypatch):
     assert loaded.constraints.baseline == str((folder / "reference.yaml").resolve())
 
 
+
+def test_a_runs_records_do_not_depend_on_where_its_files_are(tmp_path):
+    """The constraint a baseline sets is named by the baseline's name, never by its path: two
+    copies of a spec in two folders record the same keys (histories compare across checkouts)."""
+    from furuta_cosim.tuning.objective import Evaluator
+    from furuta_cosim.tuning.spec import load_spec
+
+    keys = []
+    for name in ("one", "two"):
+        folder = tmp_path / name
+        folder.mkdir()
+        shutil.copy(SHIPPED / "controllers" / "lqr-paper.yaml", folder / "reference.yaml")
+        spec = load_spec(spec_file(folder, objective__scenarios=["paper-step"],
+                                   constraints__no_worse_than={"controller": "reference.yaml",
+                                                               "metrics": {"error.ISE": 1.05}}))
+        evaluator = Evaluator(spec)
+        outcome = evaluator([(low + high) / 2 for low, high in evaluator.space.bounds])
+        keys.append(sorted(outcome.constraints))
+    assert keys[0] == keys[1]
+    assert "paper-step.error.ISE/reference" in keys[0]
+    assert not any(str(tmp_path) in key for key in keys[0])
+
 def test_a_spec_names_a_model_of_its_own_tree(tmp_path):
     """A model only the spec's tree has (plants/ beside tuning/) loads, and is recorded as the
     file it resolved to, so best.yaml in a run directory names the same model."""

@@ -206,7 +206,7 @@ class Evaluator:
                 reference = self.baseline_metrics()[label].get(metric, math.inf)
                 value = result.metrics.get(metric, math.inf)
                 ratio = value / reference if reference > 0 else (0.0 if value <= 0 else math.inf)
-                constraints[f"{label}.{metric}/{spec.constraints.baseline}"] = ratio
+                constraints[f"{label}.{metric}/{Path(spec.constraints.baseline).stem}"] = ratio
                 violation += max(0.0, ratio / factor - 1.0)
                 slacks.append(ratio / factor - 1.0)
             if spec.constraints.requirements and not result.passed:
