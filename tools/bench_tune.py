@@ -3,15 +3,20 @@ beside the LQR scored alike and the best value known, in one run.
 
     python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--first-seed 0] [--calls 150]
                                [--workers 2] [--methods ours,global,before,random,de,skopt]
-                               [--best-known 3000] [--before REV] [--kernel NAME] [-o FOLDER]
+                               [--best-known 3000] [--kernel NAME] [-o FOLDER]
 
 Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``):
 
 - ``ours``: ``bo`` as shipped (constrained BO, ``optimizer.region: trust``);
 - ``global``: the same with ``region: global``, the alternative the trust region is measured
   against;
-- ``before``: ``furuta-cosim tune`` of revision REV (default: the last one before constrained
-  BO), run from a git worktree of this repository with ``--workers`` workers;
+- ``before``: the search this project shipped before constrained BO (revision 8804270):
+  scikit-optimize's GP (Gaussian noise) and Expected Improvement with the spec's ``xi`` and
+  ``n_initial_points`` random initial points, EI maximized from 2,000 sampled points and 2
+  L-BFGS starts, told the penalized objective. That revision cannot read today's specs
+  (relative terms, baselines), so its settings run here on today's objective, one point at a
+  time and with a refit at every point (it refitted at every fifth and took ``--workers``
+  points at a time: its history depended on them);
 - ``random``, ``de``: random search and scipy's differential evolution, same budget;
 - ``skopt``: scikit-optimize's ``gp_minimize`` defaults (GP, gp_hedge, 10 random initial
   points), told the penalized objective (``penalty + violation`` when infeasible), one point
@@ -46,7 +51,6 @@ from furuta_cosim.tuning.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 METHODS = ("ours", "global", "before", "random", "de", "skopt")
-BEFORE = "8804270"  # the last revision before constrained BO (scikit-optimize's GP + EI, penalized)
 
 
 class Timer:
@@ -93,31 +97,32 @@ def plain(spec, folder: Path, seed: int, calls: int, workers: int, method: str) 
     return tune(spec, folder, method=method, n_calls=calls, seed=seed, workers=workers)
 
 
-def before(spec_name: str, folder: Path, seed: int, calls: int, workers: int, worktree: Path) -> dict:
-    """``furuta-cosim tune`` of the revision in ``worktree``, in a child process."""
-    environment = {**os.environ, "PYTHONPATH": str(worktree)}
-    command = [sys.executable, "-m", "furuta_cosim", "tune", spec_name, "-o", str(folder),
-               "--seed", str(seed), "--n-calls", str(calls), "--workers", str(workers)]
-    done = subprocess.run(command, env=environment, capture_output=True, text=True, cwd=worktree)
-    if done.returncode not in (0, 1):
-        raise RuntimeError(f"{' '.join(command)}: exit {done.returncode}\n{done.stderr[-2000:]}")
-    return json.loads((folder / "summary.json").read_text())
-
-
-def skopt(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
-    """scikit-optimize's gp_minimize defaults on the spec's space, one point at a time."""
+def skopt(spec, folder: Path, seed: int, calls: int, workers: int, *, before: bool = False) -> dict:
+    """scikit-optimize's ``gp_minimize`` defaults on the spec's space, one point at a time, or
+    (``before``) the settings of the search before constrained BO (module doc)."""
     import warnings
 
     from skopt import Optimizer
+    from skopt.utils import cook_estimator
 
     from furuta_cosim.tuning.executors import Processes, Serial
     from furuta_cosim.tuning.objective import Evaluator
 
     evaluator = Evaluator(spec)
     executor = Processes(spec, workers) if workers > 1 else Serial(spec, evaluator)
-    optimizer = Optimizer(evaluator.space.dimensions(), base_estimator="GP", acq_func="gp_hedge",
-                          acq_optimizer="lbfgs", n_initial_points=10,
-                          initial_point_generator="random", random_state=seed)
+    dimensions = evaluator.space.dimensions()
+    if before:
+        settings = spec.optimizer
+        gp = cook_estimator("GP", space=dimensions, random_state=seed, noise="gaussian")
+        optimizer = Optimizer(dimensions, base_estimator=gp, acq_func="EI",
+                              acq_func_kwargs={"xi": settings.xi},
+                              n_initial_points=settings.n_initial_points, acq_optimizer="lbfgs",
+                              acq_optimizer_kwargs={"n_points": 2000, "n_restarts_optimizer": 2},
+                              random_state=seed)
+    else:
+        optimizer = Optimizer(dimensions, base_estimator="GP", acq_func="gp_hedge",
+                              acq_optimizer="lbfgs", n_initial_points=10,
+                              initial_point_generator="random", random_state=seed)
     best = None
     try:
         for _ in range(calls):
@@ -136,14 +141,6 @@ def skopt(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
     return document
 
 
-def worktree(revision: str, work: Path) -> Path:
-    path = work / f"before-{revision}"
-    if not path.exists():
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(path), revision],
-                       check=True)
-    return path
-
-
 def best_of(document: dict) -> float | None:
     return document["best"]["objective"] if document.get("best") else None
 
@@ -151,7 +148,6 @@ def best_of(document: dict) -> float | None:
 def measure(args, work: Path) -> dict:
     results: dict = {}
     timer = Timer()
-    tree = worktree(args.before, work) if "before" in args.methods else None
     for name in args.specs:
         spec = load_spec(name)
         rows, lqr = {}, None
@@ -163,10 +159,9 @@ def measure(args, work: Path) -> dict:
                     region = "trust" if method == "ours" else "global"
                     with timer if method == "ours" else _nothing():
                         document = ours(spec, folder, seed, args.calls, args.workers, region)
-                elif method == "before":
-                    document = before(name, folder, seed, args.calls, args.workers, tree)
-                elif method == "skopt":
-                    document = skopt(spec, folder, seed, args.calls, args.workers)
+                elif method in ("skopt", "before"):
+                    document = skopt(spec, folder, seed, args.calls, args.workers,
+                                     before=method == "before")
                 else:
                     document = plain(spec, folder, seed, args.calls, args.workers, method)
                 rows.setdefault(method, []).append(best_of(document))
@@ -247,7 +242,6 @@ def main() -> int:
     parser.add_argument("--methods", default=",".join(METHODS),
                         type=lambda text: [m for m in text.split(",") if m])
     parser.add_argument("--best-known", type=int, default=3000, help="evaluations of the de run (0: none)")
-    parser.add_argument("--before", default=BEFORE, help="the revision of the 'before' row")
     parser.add_argument("--kernel", help="rerun 'ours' under OPENBLAS_CORETYPE=KERNEL and compare")
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one)")
     parser.add_argument("--json", help=argparse.SUPPRESS)  # a child's results (--kernel)
