@@ -30,6 +30,24 @@ def build_foreign(tool: str, script: Path, folder: Path, *project_files: Path) -
     assert done.returncode == 0, done.stdout + done.stderr
 
 
+
+def scheduled_only(source: Path, target: Path) -> Path:
+    """A copy of the FMI 3.0 FMU ``source`` as a clocked FMU would come: its co-simulation
+    interface renamed to scheduled execution, model exchange removed."""
+    import re
+    import zipfile
+
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
+        for name in archive.namelist():
+            data = archive.read(name)
+            if name == "modelDescription.xml":
+                text = re.sub(r"<CoSimulation\b", "<ScheduledExecution", data.decode())
+                text = text.replace("</CoSimulation>", "</ScheduledExecution>")
+                data = re.sub(r"<ModelExchange\b[^>]*?/>|<ModelExchange\b.*?</ModelExchange>", "", text,
+                              flags=re.S).encode()
+            out.writestr(name, data)
+    return target
+
 def run_cli(capsys, *argv):
     """``furuta-cosim ARGV`` in-process: (exit code, stdout, stderr)."""
     code = main(list(argv))

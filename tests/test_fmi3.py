@@ -14,7 +14,7 @@ from furuta_cosim.fmu.session import PlantSession, PlantSession3
 from furuta_cosim.regression import regress
 from furuta_cosim.scenario import load_scenario
 
-from conftest import FOREIGN, build_foreign, run_cli
+from conftest import FOREIGN, build_foreign, run_cli, scheduled_only
 
 STATES = "{theta0: arm_angle, dtheta0: arm_rate, theta1: pend_angle, dtheta1: pend_rate, i: current}"
 PLANT = """\
@@ -94,19 +94,7 @@ optimizer: {{method: random, n_calls: 4, seed: 1, batch: 1}}
 
 def test_scheduled_execution_only_is_one_line(fmi3, tmp_path, capsys):
     """An FMU with clocks that offers only scheduled execution is named, not run."""
-    import re
-    import zipfile
-
-    source, target = fmi3 / "ForeignPendulum3.fmu", tmp_path / "Scheduled.fmu"
-    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
-        for name in archive.namelist():
-            data = archive.read(name)
-            if name == "modelDescription.xml":
-                text = re.sub(r"<CoSimulation\b", "<ScheduledExecution", data.decode())
-                text = re.sub(r"</CoSimulation>", "</ScheduledExecution>", text)
-                text = re.sub(r"<ModelExchange\b[^>]*?/>|<ModelExchange\b.*?</ModelExchange>", "", text, flags=re.S)
-                data = text.encode()
-            out.writestr(name, data)
+    target = scheduled_only(fmi3 / "ForeignPendulum3.fmu", tmp_path / "Scheduled.fmu")
     code, _, err = run_cli(capsys, "simulate", "paper-step", "--fmu", str(target), "-o", str(tmp_path / "o"))
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "not an FMI 2.0 or 3.0 co-simulation FMU (FMI 3.0, scheduled execution only)" in err

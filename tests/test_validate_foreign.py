@@ -9,7 +9,7 @@ import pytest
 
 from furuta_cosim.cli import main
 
-from conftest import FOREIGN, build_foreign
+from conftest import FOREIGN, build_foreign, scheduled_only
 
 
 @pytest.fixture(scope="module")
@@ -17,17 +17,7 @@ def exports(tmp_path_factory):
     folder = tmp_path_factory.mktemp("exports")
     build_foreign("pythonfmu", FOREIGN / "mixed_fmu.py", folder)
     build_foreign("pythonfmu3", FOREIGN / "pendulum3_fmu.py", folder, FOREIGN / "pendulum_physics.py")
-    # the FMI 3.0 pendulum as a clocked FMU would come: scheduled execution only
-    with zipfile.ZipFile(folder / "ForeignPendulum3.fmu") as source, \
-            zipfile.ZipFile(folder / "Scheduled.fmu", "w") as target:
-        for name in source.namelist():
-            data = source.read(name)
-            if name == "modelDescription.xml":
-                text = re.sub(r"<CoSimulation\b", "<ScheduledExecution", data.decode())
-                text = text.replace("</CoSimulation>", "</ScheduledExecution>")
-                data = re.sub(r"<ModelExchange\b[^>]*?/>|<ModelExchange\b.*?</ModelExchange>", "", text,
-                              flags=re.S).encode()
-            target.writestr(name, data)
+    scheduled_only(folder / "ForeignPendulum3.fmu", folder / "Scheduled.fmu")
     return folder
 
 

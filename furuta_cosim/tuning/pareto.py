@@ -142,7 +142,8 @@ def improvement_2d(front, reference, points) -> np.ndarray:
 
 def staircase(front, reference):
     """``improvement_2d`` against one front, as a function of the points (the front's
-    staircase is built once for many calls; each point then costs two binary searches)."""
+    staircase is built once for many calls; each point then costs three binary searches: the
+    step it reaches and the two ends of the interval it covers)."""
     r = np.asarray(reference, dtype=float)
     F = np.asarray(front, dtype=float).reshape(-1, 2)
     F = F[np.all(F < r, axis=1)]
