@@ -111,7 +111,7 @@ def nan_plant(tmp_path_factory, foreign):
     """paper-step on a pythonfmu plant whose outputs turn NaN at 14 ms, mapped like the
     foreign pendulum."""
     folder = tmp_path_factory.mktemp("nan-plant")
-    build_foreign("pythonfmu", FOREIGN / "nan_fmu.py", folder)
+    build_foreign("pythonfmu", FOREIGN / "nan_fmu.py", folder, FOREIGN / "pendulum_physics.py")
     text = (foreign / "paper-step-mapped.yaml").read_text()
     (folder / "paper-step-nan.yaml").write_text(text.replace("ForeignPendulum.fmu", "NanPlant.fmu"))
     return folder

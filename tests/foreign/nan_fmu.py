@@ -1,11 +1,11 @@
 """A plant FMU whose outputs turn NaN: a pythonfmu slave with the foreign pendulum's names, a
 stable first-order response in each state until ``nan_after`` seconds, NaN from then on.
-Another tool's FMU may do this without an error status; a run on it must fail, not pass."""
+Another tool's FMU may do this without an error status; a run on it must fail, not pass.
+Built with pendulum_physics.py as a project file (the names)."""
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
 
-STATES = ("arm_angle", "arm_rate", "pend_angle", "pend_rate", "current")
-INPUTS = ("voltage", "arm_torque", "pend_torque")
+from pendulum_physics import INPUTS, STATES
 
 
 class NanPlant(Fmi2Slave):
