@@ -94,3 +94,26 @@ def test_an_unknown_fmi_version_is_refused(capsys):
         run_cli(capsys, "build-fmu", "furuta", "--fmi-version", "1.0")
     assert stop.value.code == 2
     assert "invalid choice: '1.0'" in capsys.readouterr().err
+
+
+def test_one_call_steps_equal_three_call_steps_and_fail_alike(fmu3):
+    """Each FMI 3.0 step is one call into the compiled helper (set, doStep, get); without a
+    compiler the session makes the three calls itself. Both give the same numbers, and a step
+    the FMU rejects fails with the same message."""
+    from furuta_cosim.errors import FmuError
+
+    runs, errors = [], []
+    for one_call in (True, False):
+        with PlantSession.open(fmu3) as session:
+            assert session._step_io == session._step_one_call  # the helper compiles here (gcc)
+            if not one_call:
+                session._step_io = session._step_three_calls
+            session.reset({"theta1_start": 0.1})
+            session.set_io(["V"], ["theta0", "theta1", "i"])
+            runs.append([session.step([np.sin(k / 50)], 2e-3) for k in range(500)])
+            session.time = 0.5  # not where the FMU is (1.0 s)
+            with pytest.raises(FmuError) as failed:
+                session.step([0.0], 2e-3)
+            errors.append(str(failed.value))
+    assert runs[0] == runs[1] and np.max(np.abs(np.array(runs[0])[:, 1] - 0.1)) > 1e-3
+    assert errors[0] == errors[1] and "fmi3DoStep at t = 0.5" in errors[0], errors

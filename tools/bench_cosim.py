@@ -12,6 +12,8 @@ Measured in one run, best of the repeats:
                compile + run + metrics, what tuning pays per scenario per candidate; the same
                in a worker process after its first call (the prepared scenario and the result
                cross the process boundary each time);
+- FMI 3.0:     bare steps of our FMI 3.0 build of the same pendulum (same inputs), against
+               the FMI 2.0 build;
 - foreign:     bare steps of the pythonfmu-built pendulum of the tests (when pythonfmu is
                installed), against ours;
 - start-up:    ``furuta-cosim --help`` and ``list`` against ``python -c pass``.
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import multiprocessing
+import os
 import shutil
 import subprocess
 import sys
@@ -65,9 +68,11 @@ def foreign_step(repeats: int, steps: int) -> float | None:
         return None
     folder = Path(tempfile.mkdtemp(prefix="bench-foreign-"))
     try:
-        subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
-                        str(ROOT / "tests" / "foreign" / "pendulum_fmu.py"), "-d", str(folder)],
-                       check=True, capture_output=True)
+        foreign = ROOT / "tests" / "foreign"
+        # the slave imports its physics, a project file of the build
+        subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(foreign / "pendulum_fmu.py"),
+                        str(foreign / "pendulum_physics.py"), "-d", str(folder)],
+                       check=True, capture_output=True, env={**os.environ, "PYTHONPATH": str(foreign)})
         with PlantSession.open(folder / "ForeignPendulum.fmu") as plant:
             def bare():
                 plant.reset({"pend_angle_0": 0.1})
@@ -78,6 +83,21 @@ def foreign_step(repeats: int, steps: int) -> float | None:
             return best(bare, max(1, repeats // 3))
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def fmi3_step(prepared, applied, h: float, repeats: int) -> float:
+    """Bare steps of the FMI 3.0 build with the inputs the FMI 2.0 run applied."""
+    from furuta_cosim.fmu.exporter import build_fmu
+
+    with PlantSession.open(build_fmu("furuta", fmi_version="3.0")) as plant:
+        def bare():
+            plant.reset(prepared.start)
+            plant.set_io(["V"], prepared.outputs)
+            step = plant.step
+            for u in applied:
+                step([u], h)
+
+        return best(bare, repeats)
 
 
 def startup(argv: list[str], repeats: int) -> float:
@@ -138,6 +158,7 @@ def main() -> int:
         t_worker = best(lambda: [workers.submit(evaluate_here, prepared, remote.pop()).result()
                                  for _ in range(args.candidates)], args.repeats) / args.candidates
 
+    t_fmi3 = fmi3_step(prepared, applied, h, args.repeats)
     t_foreign = foreign_step(args.repeats, steps)
     t_pass = startup([sys.executable, "-c", "pass"], args.repeats)
     command = [sys.executable, "-m", "furuta_cosim.cli"]
@@ -153,7 +174,8 @@ def main() -> int:
             ("noise: extra per run (noise scenario)", t_noise_run - t_run),
             ("end to end (load, prepare, evaluate, metrics)", t_total),
             ("new candidate on a prepared scenario", t_candidate),
-            ("  the same in a worker process", t_worker)]
+            ("  the same in a worker process", t_worker),
+            ("bare step of the FMI 3.0 build", t_fmi3)]
     if t_foreign is not None:
         rows.append(("bare step of the pythonfmu pendulum", t_foreign))
     for name, seconds in rows:

@@ -73,6 +73,13 @@ typedef struct {
     const fmi2ValueReference* out_vr; size_t n_out; double* out;
 } StepCall;
 int step_io(const StepCall*, double, double);
+typedef struct {
+    void* set_float64; void* do_step; void* get_float64; void* instance;
+    const unsigned int* in_vr; size_t n_in; const double* in_;
+    const unsigned int* out_vr; size_t n_out; double* out;
+    bool flags[3]; double last;
+} StepCall3;
+int step_io3(StepCall3*, double, double);
 typedef void* fmi3Instance;
 typedef void (*fmi3LogMessageCallback)(void*, int, const char*, const char*);
 fmi3Instance fmi3InstantiateCoSimulation(const char*, const char*, const char*, bool, bool, bool,
@@ -519,8 +526,8 @@ class PlantSession:
 
 class PlantSession3(PlantSession):
     """The same session on an FMI 3.0 FMU (Float64 and Int32 variables): ``PlantSession(binary)``
-    gives one when the binary is FMI 3.0. Each step is three foreign calls (set, doStep, get):
-    the one-call helper knows the FMI 2.0 signatures only."""
+    gives one when the binary is FMI 3.0. Each step is one foreign call (step_io3 of the
+    helper), or three without a compiler (set, doStep, get)."""
 
     REAL, INTEGER = "Float64", "Int32"
     GET_STATE, SET_STATE, FREE_STATE = "fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState"
@@ -554,7 +561,9 @@ class PlantSession3(PlantSession):
                 _FFI.NULL, self._logger, _FFI.NULL)
         if self._c == _FFI.NULL:
             raise FmuError(f"{binary.identifier}: fmi3Instantiate{interface} failed: {self._drain()}")
-        self._step_io = self._step_three_calls
+        helper = _step_helper()
+        self._step_io = self._step_one_call if helper else self._step_three_calls
+        self._helper = helper
         self._nx = len(binary.states)
         self._x = _FFI.new("double[]", max(self._nx, 1))
         self._dx = _FFI.new("double[]", max(self._nx, 1))
@@ -601,7 +610,23 @@ class PlantSession3(PlantSession):
         self._out_vr = _FFI.new("unsigned int[]", [self._real_vr(n, None) for n in outputs] or [0])
         self._in = _FFI.new("double[]", max(self._n_in, 1))
         self._out = _FFI.new("double[]", max(self._n_out, 1))
-        self._call = None
+        call = self._call = _FFI.new("StepCall3*")
+        call.set_float64 = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi3SetFloat64"))
+        call.do_step = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi3DoStep"))
+        call.get_float64 = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi3GetFloat64"))
+        call.instance = self._c
+        call.in_vr, call.n_in, call.in_ = self._in_vr, self._n_in, self._in
+        call.out_vr, call.n_out, call.out = self._out_vr, self._n_out, self._out
+
+    def _step_one_call(self, call, t: float, h: float) -> int:
+        if self._c is None:
+            self._usable()
+        failed = self._helper.step_io3(call, t, h)
+        if failed == 32:
+            self._messages.append(f"the FMU asked to end the simulation at t = {call.last:.9g}")
+        elif failed == 33:
+            self._messages.append(f"the step returned early at t = {call.last:.9g}")
+        return 16 + 3 if failed in (32, 33) else failed
 
     def _step_three_calls(self, call, t: float, h: float) -> int:
         lib, c = self._lib, self._c

@@ -1,6 +1,7 @@
 /* One call per control step: set the inputs, doStep, get the outputs.
  * Each foreign call from Python costs about 0.4 us, more than half the plant's own step; the
  * session prepares this struct once and then crosses into C once per step. */
+#include <stdbool.h>
 #include <stddef.h>
 
 typedef int (*set_real_t)(void *, const unsigned int *, size_t, const double *);
@@ -28,6 +29,44 @@ __attribute__((visibility("default"))) int step_io(const StepCall *call, double 
         return 8 + status;
     if ((status = call->do_step(call->component, t, h, 1)) >= 2) return 16 + status;
     if (call->n_out && (status = call->get_real(call->component, call->out_vr, call->n_out, call->out)) >= 2)
+        return 24 + status;
+    return 0;
+}
+
+/* The same for FMI 3.0, whose calls take array sizes and whose doStep reports through flags:
+ * 0, 8 * (1, 2 or 3) + status as above, or 32 when the FMU asks to end the simulation and 33
+ * when the step returned early (call->last: the time it reached). */
+typedef int (*set_float64_t)(void *, const unsigned int *, size_t, const double *, size_t);
+typedef int (*do_step3_t)(void *, double, double, bool, bool *, bool *, bool *, double *);
+typedef int (*get_float64_t)(void *, const unsigned int *, size_t, double *, size_t);
+
+typedef struct {
+    set_float64_t set_float64;
+    do_step3_t do_step;
+    get_float64_t get_float64;
+    void *instance;
+    const unsigned int *in_vr;
+    size_t n_in;
+    const double *in;
+    const unsigned int *out_vr;
+    size_t n_out;
+    double *out;
+    bool flags[3]; /* event handling needed, terminate, early return */
+    double last;
+} StepCall3;
+
+__attribute__((visibility("default"))) int step_io3(StepCall3 *call, double t, double h) {
+    int status;
+    if (call->n_in &&
+        (status = call->set_float64(call->instance, call->in_vr, call->n_in, call->in, call->n_in)) >= 2)
+        return 8 + status;
+    if ((status = call->do_step(call->instance, t, h, true, &call->flags[0], &call->flags[1],
+                                &call->flags[2], &call->last)) >= 2)
+        return 16 + status;
+    if (call->flags[1]) return 32;
+    if (call->flags[2]) return 33;
+    if (call->n_out &&
+        (status = call->get_float64(call->instance, call->out_vr, call->n_out, call->out, call->n_out)) >= 2)
         return 24 + status;
     return 0;
 }
