@@ -3,7 +3,7 @@ at the same budget, against a reference front from a long run, in one run.
 
     python tools/bench_front.py [--specs tradeoff tradeoff-static] [--seeds 10] [--calls 150]
                                 [--workers 2] [--methods ours,parego,global,random]
-                                [--reference 600] [-o FOLDER]
+                                [--reference 600] [--kernel NAME] [-o FOLDER]
 
 Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``):
 
@@ -21,13 +21,19 @@ worst, and for each feasible baseline the lowest value of the first criterion a 
 reaches at the baseline's other criteria (median and spread over the seeds: what
 ``furuta-cosim fronts`` says for one run of each family). Every run's folder stays under ``-o``
 (default: a new temporary folder) with bench.json.
+
+``--kernel NAME`` runs the ``ours`` rows again under OPENBLAS_CORETYPE=NAME (a child process,
+its runs under ``kernel-NAME``) and prints the spread of each seed's hypervolume between the two
+BLAS kernels, both against this run's reference front and point.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -157,6 +163,7 @@ def main() -> int:
                         type=lambda text: [m for m in text.split(",") if m])
     parser.add_argument("--reference", type=int, default=600,
                         help="evaluations of the long bo run (0: the reference front is the runs' own)")
+    parser.add_argument("--kernel", help="rerun 'ours' under OPENBLAS_CORETYPE=KERNEL and compare")
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one); "
                                                "runs already finished there are reused")
     args = parser.parse_args()
@@ -173,7 +180,42 @@ def main() -> int:
         return 2
     (work / "bench.json").write_text(json.dumps(results, indent=1) + "\n")
     print("\n".join(table(results, args)))
+    if args.kernel:
+        print("\n".join(kernel_spread(args, work, results)))
     return 0
+
+
+def kernel_spread(args, work: Path, results: dict) -> list[str]:
+    """The ``ours`` runs again under another BLAS kernel, measured against this run's reference."""
+    child = work / f"kernel-{args.kernel}"
+    command = [sys.executable, __file__, "--specs", *args.specs, "--seeds", str(args.seeds),
+               "--calls", str(args.calls), "--workers", str(args.workers), "--methods", "ours",
+               "--reference", "0", "-o", str(child)]
+    subprocess.run(command, env={**os.environ, "OPENBLAS_CORETYPE": args.kernel}, check=True,
+                   stdout=subprocess.DEVNULL)
+    lines = ["", f"ours under OPENBLAS_CORETYPE={args.kernel} against the default kernel "
+                 "(hypervolume fractions against the reference front above):"]
+    for name, data in results.items():
+        names, point, best = data["criteria"], data["reference_point"], data["reference_hypervolume"]
+        mine = data["rows"]["ours"]["hypervolume"]
+        theirs = []
+        for seed in range(args.seeds):
+            records = [json.loads(line) for line in
+                       (child / name / "ours" / f"seed-{seed}" / "history.jsonl").read_text().splitlines()]
+            front = [pareto.criteria_of(records[k], names) for k in pareto.front_of(records, names)]
+            theirs.append(pareto.hypervolume(front, point) / best)
+        same = sum(1 for a, b in zip(mine, theirs) if a == b)
+        spread = max(abs(a - b) for a, b in zip(mine, theirs))
+        lines.append(f"  {name}: {same}/{len(mine)} seeds identical; largest change of a seed's fraction "
+                     f"{spread:.3f}; median {statistics.median(theirs):.3f} against {statistics.median(mine):.3f}, "
+                     f"worst {min(theirs):.3f} against {min(mine):.3f}; per seed " + " ".join(f"{v:.3f}" for v in theirs))
+        for method, row in data["rows"].items():
+            if method != "ours":
+                other = statistics.median(row["hypervolume"])
+                before, after = statistics.median(mine) > other, statistics.median(theirs) > other
+                lines.append(f"    ours' median ahead of {method}'s ({other:.3f}): {before} under the default "
+                             f"kernel, {after} under {args.kernel}")
+    return lines
 
 
 if __name__ == "__main__":
