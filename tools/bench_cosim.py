@@ -85,19 +85,23 @@ def foreign_step(repeats: int, steps: int) -> float | None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def bare_steps(plant, prepared, applied, h: float):
+    """A run of nothing but ``plant.step`` with the inputs ``applied``."""
+    def bare():
+        plant.reset(prepared.start)
+        plant.set_io(["V"], prepared.outputs)
+        step = plant.step
+        for u in applied:
+            step([u], h)
+    return bare
+
+
 def fmi3_step(prepared, applied, h: float, repeats: int) -> float:
     """Bare steps of the FMI 3.0 build with the inputs the FMI 2.0 run applied."""
     from furuta_cosim.fmu.exporter import build_fmu
 
     with PlantSession.open(build_fmu("furuta", fmi_version="3.0")) as plant:
-        def bare():
-            plant.reset(prepared.start)
-            plant.set_io(["V"], prepared.outputs)
-            step = plant.step
-            for u in applied:
-                step([u], h)
-
-        return best(bare, repeats)
+        return best(bare_steps(plant, prepared, applied, h), repeats)
 
 
 def startup(argv: list[str], repeats: int) -> float:
@@ -119,15 +123,7 @@ def main() -> int:
     with PlantSession.open(prepared.fmu) as plant:
         reference = evaluation._run(prepared, plant, compiled, None)
         applied = reference.u.tolist()
-
-        def bare():
-            plant.reset(prepared.start)
-            plant.set_io(["V"], prepared.outputs)
-            step = plant.step
-            for u in applied:
-                step([u], h)
-
-        t_bare = best(bare, args.repeats)
+        t_bare = best(bare_steps(plant, prepared, applied, h), args.repeats)
         t_run = best(lambda: evaluation._run(prepared, plant, compiled, None), args.repeats)
         t_noise_run = best(lambda: evaluation._run(noisy, plant, compiled_noisy, None), args.repeats)
         pool = list(candidates(args.candidates * args.repeats))

@@ -69,17 +69,12 @@ int fmi2GetContinuousStates(fmi2Component, double*, size_t);
 int fmi2GetDerivatives(fmi2Component, double*, size_t);
 typedef struct {
     void* set_real; void* do_step; void* get_real; void* component;
-    const fmi2ValueReference* in_vr; size_t n_in; const double* in_;
-    const fmi2ValueReference* out_vr; size_t n_out; double* out;
-} StepCall;
-int step_io(const StepCall*, double, double);
-typedef struct {
-    void* set_float64; void* do_step; void* get_float64; void* instance;
     const unsigned int* in_vr; size_t n_in; const double* in_;
     const unsigned int* out_vr; size_t n_out; double* out;
     bool flags[3]; double last;
-} StepCall3;
-int step_io3(StepCall3*, double, double);
+} StepCall;
+int step_io(const StepCall*, double, double);
+int step_io3(StepCall*, double, double);
 typedef void* fmi3Instance;
 typedef void (*fmi3LogMessageCallback)(void*, int, const char*, const char*);
 fmi3Instance fmi3InstantiateCoSimulation(const char*, const char*, const char*, bool, bool, bool,
@@ -249,6 +244,8 @@ class PlantSession:
     GET_STATE, SET_STATE, FREE_STATE = "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"
     SET_X, GET_DX = "fmi2SetContinuousStates", "fmi2GetDerivatives"
     TERMINATE, FREE, DO_STEP = "fmi2Terminate", "fmi2FreeInstance", "fmi2DoStep"
+    # one step in one call (the helper's step_io): the struct and the calls it makes
+    SET_REALS, GET_REALS = "fmi2SetReal", "fmi2GetReal"
 
     def __new__(cls, binary: FmuBinary, *args, **kwargs):
         if cls is PlantSession and binary.version == "3.0":
@@ -399,14 +396,14 @@ class PlantSession:
         self._usable()
         self.inputs, self.outputs = list(inputs), list(outputs)
         self._n_in, self._n_out = len(self.inputs), len(self.outputs)
-        self._in_vr = _FFI.new("fmi2ValueReference[]", [self._real_vr(n, "input") for n in inputs] or [0])
-        self._out_vr = _FFI.new("fmi2ValueReference[]", [self._real_vr(n, None) for n in outputs] or [0])
+        self._in_vr = _FFI.new("unsigned int[]", [self._real_vr(n, "input") for n in inputs] or [0])
+        self._out_vr = _FFI.new("unsigned int[]", [self._real_vr(n, None) for n in outputs] or [0])
         self._in = _FFI.new("double[]", max(self._n_in, 1))
         self._out = _FFI.new("double[]", max(self._n_out, 1))
         call = self._call = _FFI.new("StepCall*")
-        call.set_real = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi2SetReal"))
-        call.do_step = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi2DoStep"))
-        call.get_real = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi2GetReal"))
+        call.set_real = _FFI.cast("void*", _FFI.addressof(self._lib, self.SET_REALS))
+        call.do_step = _FFI.cast("void*", _FFI.addressof(self._lib, self.DO_STEP))
+        call.get_real = _FFI.cast("void*", _FFI.addressof(self._lib, self.GET_REALS))
         call.component = self._c
         call.in_vr, call.n_in, call.in_ = self._in_vr, self._n_in, self._in
         call.out_vr, call.n_out, call.out = self._out_vr, self._n_out, self._out
@@ -533,6 +530,7 @@ class PlantSession3(PlantSession):
     GET_STATE, SET_STATE, FREE_STATE = "fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState"
     SET_X, GET_DX = "fmi3SetContinuousStates", "fmi3GetContinuousStateDerivatives"
     TERMINATE, FREE, DO_STEP = "fmi3Terminate", "fmi3FreeInstance", "fmi3DoStep"
+    SET_REALS, GET_REALS = "fmi3SetFloat64", "fmi3GetFloat64"
 
     def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
         self.binary = binary
@@ -601,22 +599,6 @@ class PlantSession3(PlantSession):
             self._check(lib.fmi3EnterContinuousTimeMode(c), "fmi3EnterContinuousTimeMode")
         self.time = self._start = start_time
         self._k = 0
-
-    def set_io(self, inputs: Sequence[str] = (), outputs: Sequence[str] = ()) -> None:
-        self._usable()
-        self.inputs, self.outputs = list(inputs), list(outputs)
-        self._n_in, self._n_out = len(self.inputs), len(self.outputs)
-        self._in_vr = _FFI.new("unsigned int[]", [self._real_vr(n, "input") for n in inputs] or [0])
-        self._out_vr = _FFI.new("unsigned int[]", [self._real_vr(n, None) for n in outputs] or [0])
-        self._in = _FFI.new("double[]", max(self._n_in, 1))
-        self._out = _FFI.new("double[]", max(self._n_out, 1))
-        call = self._call = _FFI.new("StepCall3*")
-        call.set_float64 = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi3SetFloat64"))
-        call.do_step = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi3DoStep"))
-        call.get_float64 = _FFI.cast("void*", _FFI.addressof(self._lib, "fmi3GetFloat64"))
-        call.instance = self._c
-        call.in_vr, call.n_in, call.in_ = self._in_vr, self._n_in, self._in
-        call.out_vr, call.n_out, call.out = self._out_vr, self._n_out, self._out
 
     def _step_one_call(self, call, t: float, h: float) -> int:
         if self._c is None:
