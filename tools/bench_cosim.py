@@ -124,6 +124,7 @@ def main() -> int:
         reference = evaluation._run(prepared, plant, compiled, None)
         applied = reference.u.tolist()
         t_bare = best(bare_steps(plant, prepared, applied, h), args.repeats)
+        t_fmi3 = fmi3_step(prepared, applied, h, args.repeats)  # right after: the same machine state
         t_run = best(lambda: evaluation._run(prepared, plant, compiled, None), args.repeats)
         t_noise_run = best(lambda: evaluation._run(noisy, plant, compiled_noisy, None), args.repeats)
         pool = list(candidates(args.candidates * args.repeats))
@@ -154,7 +155,6 @@ def main() -> int:
         t_worker = best(lambda: [workers.submit(evaluate_here, prepared, remote.pop()).result()
                                  for _ in range(args.candidates)], args.repeats) / args.candidates
 
-    t_fmi3 = fmi3_step(prepared, applied, h, args.repeats)
     t_foreign = foreign_step(args.repeats, steps)
     t_pass = startup([sys.executable, "-c", "pass"], args.repeats)
     command = [sys.executable, "-m", "furuta_cosim.cli"]
