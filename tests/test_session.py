@@ -10,6 +10,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
+from furuta_cosim.errors import FmuError
 from furuta_cosim.fmu.session import FmuBinary, PlantSession
 
 from conftest import STATES
@@ -169,3 +170,13 @@ print(rss() - before)
 """
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
     assert int(result.stdout) < 5_000_000, f"grew {int(result.stdout) / 1e6:.1f} MB"
+
+
+def test_a_closed_session_refuses_a_step_with_a_clear_error(furuta_fmu):
+    session = PlantSession.open(furuta_fmu)
+    session.reset()
+    session.set_io(["V"], ["theta0"])
+    session.step([0.0], 1e-3)
+    session.close()
+    with pytest.raises(FmuError, match="the instance is gone"):
+        session.step([0.0], 1e-3)

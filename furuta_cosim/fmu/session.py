@@ -313,11 +313,16 @@ class PlantSession:
             # fmi2Terminate or fmi2FreeInstance; only unloading the library is left
             self._c = None
             self.binary.lost = True
-            self._step_io = lambda call, t, h: self._usable()
+            self._step_io = self._gone
             raise FmuError(f"{self.binary.identifier}: {what} failed fatally: {self._drain()} "
                            "(the instance cannot be used again)")
         if status >= 2:
             raise FmuError(f"{self.binary.identifier}: {what} failed: {self._drain()}")
+
+    def _gone(self, call, t: float, h: float) -> int:
+        """A step of an instance that is closed or failed fatally: an error, never a call."""
+        self._usable()
+        return 0
 
     def _usable(self) -> None:
         if self._c is None:
@@ -511,6 +516,7 @@ class PlantSession:
             getattr(self._lib, self.FREE)(self._c)
             self._c = None
         self._call = None
+        self._step_io = self._gone
         if self._owns_binary:
             self.binary.close()
 
@@ -560,13 +566,11 @@ class PlantSession3(PlantSession):
         if self._c == _FFI.NULL:
             raise FmuError(f"{binary.identifier}: fmi3Instantiate{interface} failed: {self._drain()}")
         helper = _step_helper()
-        self._step_io = self._step_one_call if helper else self._step_three_calls
-        self._helper = helper
+        self._step_io = helper.step_io3 if helper else self._step_three_calls
         self._nx = len(binary.states)
         self._x = _FFI.new("double[]", max(self._nx, 1))
         self._dx = _FFI.new("double[]", max(self._nx, 1))
         self._flags = _FFI.new("bool[6]")
-        self._last = _FFI.new("double*")
         self.set_io()
         self.time = 0.0
         self._start = 0.0
@@ -600,15 +604,12 @@ class PlantSession3(PlantSession):
         self.time = self._start = start_time
         self._k = 0
 
-    def _step_one_call(self, call, t: float, h: float) -> int:
-        if self._c is None:
-            self._usable()
-        failed = self._helper.step_io3(call, t, h)
-        if failed == 32:
-            self._messages.append(f"the FMU asked to end the simulation at t = {call.last:.9g}")
-        elif failed == 33:
-            self._messages.append(f"the step returned early at t = {call.last:.9g}")
-        return 16 + 3 if failed in (32, 33) else failed
+    def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
+        if failed in (32, 33):  # step_io3: the FMU asked to end, or returned early
+            what = "asked to end the simulation" if failed == 32 else "returned early from the step"
+            self._messages.append(f"the FMU {what} at t = {self._call.last:.9g}")
+            failed = 16 + 3
+        super()._step_failed(failed, inputs)
 
     def _step_three_calls(self, call, t: float, h: float) -> int:
         lib, c = self._lib, self._c
@@ -616,15 +617,12 @@ class PlantSession3(PlantSession):
             self._usable()
         if self._n_in and (status := lib.fmi3SetFloat64(c, self._in_vr, self._n_in, self._in, self._n_in)) >= 2:
             return 8 + status
-        flags = self._flags
-        if (status := lib.fmi3DoStep(c, t, h, True, flags, flags + 1, flags + 2, self._last)) >= 2:
+        flags = call.flags  # as step_io3 does: its answers go to the call, 32 and 33 as there
+        if (status := lib.fmi3DoStep(c, t, h, True, flags, flags + 1, flags + 2,
+                                     _FFI.addressof(call, "last"))) >= 2:
             return 16 + status
-        if flags[1]:
-            self._messages.append(f"the FMU asked to end the simulation at t = {self._last[0]:.9g}")
-            return 16 + 3
-        if flags[2]:
-            self._messages.append(f"the step returned early at t = {self._last[0]:.9g}")
-            return 16 + 3
+        if flags[1] or flags[2]:
+            return 32 if flags[1] else 33
         if self._n_out and (status := lib.fmi3GetFloat64(c, self._out_vr, self._n_out, self._out, self._n_out)) >= 2:
             return 24 + status
         return 0
