@@ -10,13 +10,13 @@ Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``
 - ``ours``: ``bo`` as shipped (constrained BO, ``optimizer.region: trust``);
 - ``global``: the same with ``region: global``, the alternative the trust region is measured
   against;
-- ``before``: the search this project shipped before constrained BO (revision 8804270):
-  scikit-optimize's GP (Gaussian noise) and Expected Improvement with the spec's ``xi`` and
-  ``n_initial_points`` random initial points, EI maximized from 2,000 sampled points and 2
-  L-BFGS starts, told the penalized objective. That revision cannot read today's specs
-  (relative terms, baselines), so its settings run here on today's objective, one point at a
-  time and with a refit at every point (it refitted at every fifth and took ``--workers``
-  points at a time: its history depended on them);
+- ``before``: the search this project shipped before constrained BO, its optimizer modules
+  read from revision 8804270 in this checkout's git history and run as they were
+  (scikit-optimize's GP and EI with the spec's ``xi``, ``n_initial_points`` and ``gp_restarts``,
+  hyperparameters refitted every fifth tell, batches of the spec's ``optimizer.batch`` by the
+  constant liar) on today's objective, told the penalized objective; that revision's own run
+  loop cannot read today's specs (relative terms, baselines), and took ``max(batch, workers)``
+  points at a time, the same as here with its default two workers;
 - ``random``, ``de``: random search and scipy's differential evolution, same budget;
 - ``skopt``: scikit-optimize's ``gp_minimize`` defaults (GP, gp_hedge, 10 random initial
   points), told the penalized objective (``penalty + violation`` when infeasible), one point
@@ -97,42 +97,86 @@ def plain(spec, folder: Path, seed: int, calls: int, workers: int, method: str) 
     return tune(spec, folder, method=method, n_calls=calls, seed=seed, workers=workers)
 
 
-def skopt(spec, folder: Path, seed: int, calls: int, workers: int, *, before: bool = False) -> dict:
-    """scikit-optimize's ``gp_minimize`` defaults on the spec's space, one point at a time, or
-    (``before``) the settings of the search before constrained BO (module doc)."""
-    import warnings
-
+def skopt(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
+    """scikit-optimize's ``gp_minimize`` defaults on the spec's space, one point at a time."""
     from skopt import Optimizer
-    from skopt.utils import cook_estimator
+
+    from furuta_cosim.tuning.objective import Evaluator
+
+    dimensions = Evaluator(spec).space.dimensions()
+    optimizer = Optimizer(dimensions, base_estimator="GP", acq_func="gp_hedge", acq_optimizer="lbfgs",
+                          n_initial_points=10, initial_point_generator="random", random_state=seed)
+    return _ask_tell(spec, folder, calls, workers, 1, lambda count: [optimizer.ask()], optimizer.tell)
+
+
+# the last revision before constrained BO; its optimizer modules are read from git history
+BEFORE = "8804270"
+
+
+def before(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
+    """The optimizer of revision BEFORE as it was (module doc), on today's objective."""
+    from threadpoolctl import threadpool_limits
+
+    from furuta_cosim.tuning.objective import Evaluator
+
+    settings, make = spec.optimizer, _before_make()
+    dimensions = Evaluator(spec).space.dimensions()
+    # that revision's loop: one BLAS thread for the optimizer, batches by the constant liar
+    with threadpool_limits(1):
+        optimizer = make(dimensions, "bo", seed, xi=settings.xi, n_initial_points=settings.n_initial_points,
+                         gp_restarts=settings.gp_restarts)
+        return _ask_tell(spec, folder, calls, workers, settings.batch,
+                         lambda count: list(optimizer.batch(count)), optimizer.tell)
+
+
+def _before_make():
+    """``make`` of revision BEFORE's tuning/optimizers.py (with its tuning/gp.py), loaded from
+    this checkout's git history as modules of their own."""
+    import types
+
+    sources = {}
+    for name in ("gp", "optimizers"):
+        shown = subprocess.run(["git", "-C", str(ROOT), "show", f"{BEFORE}:furuta_cosim/tuning/{name}.py"],
+                               capture_output=True, text=True)
+        if shown.returncode:
+            raise SystemExit(f"--methods before reads revision {BEFORE} from the git history of "
+                             f"{ROOT}: {shown.stderr.strip() or 'git failed'}")
+        sources[name] = shown.stdout
+    importing = "from furuta_cosim.tuning.gp import"
+    if importing not in sources["optimizers"]:
+        raise SystemExit(f"revision {BEFORE}'s optimizers.py does not import its gp module as expected")
+    sources["optimizers"] = sources["optimizers"].replace(importing, "from bench_before_gp import")
+    modules = {}
+    for name in ("gp", "optimizers"):
+        module = types.ModuleType(f"bench_before_{name}")
+        sys.modules[module.__name__] = module
+        exec(compile(sources[name], f"{BEFORE}:furuta_cosim/tuning/{name}.py", "exec"), module.__dict__)
+        modules[name] = module
+    return modules["optimizers"].make
+
+
+def _ask_tell(spec, folder: Path, calls: int, workers: int, batch: int, ask, tell) -> dict:
+    """Batches of ``ask(count)`` points evaluated and told (``tell(xs, ys)``) with the penalized
+    objective (``penalty + violation`` when infeasible); the best feasible in summary.json."""
+    import warnings
 
     from furuta_cosim.tuning.executors import Processes, Serial
     from furuta_cosim.tuning.objective import Evaluator
 
     evaluator = Evaluator(spec)
     executor = Processes(spec, workers) if workers > 1 else Serial(spec, evaluator)
-    dimensions = evaluator.space.dimensions()
-    if before:
-        settings = spec.optimizer
-        gp = cook_estimator("GP", space=dimensions, random_state=seed, noise="gaussian")
-        optimizer = Optimizer(dimensions, base_estimator=gp, acq_func="EI",
-                              acq_func_kwargs={"xi": settings.xi},
-                              n_initial_points=settings.n_initial_points, acq_optimizer="lbfgs",
-                              acq_optimizer_kwargs={"n_points": 2000, "n_restarts_optimizer": 2},
-                              random_state=seed)
-    else:
-        optimizer = Optimizer(dimensions, base_estimator="GP", acq_func="gp_hedge",
-                              acq_optimizer="lbfgs", n_initial_points=10,
-                              initial_point_generator="random", random_state=seed)
-    best = None
+    best, done = None, 0
     try:
-        for _ in range(calls):
+        while done < calls:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                x = optimizer.ask()
-                outcome = executor.gather([executor.submit(x)])[0]
-                optimizer.tell(x, outcome.objective)
-            if outcome.feasible and (best is None or outcome.objective < best):
-                best = outcome.objective
+                xs = ask(min(batch, calls - done))
+                outcomes = executor.gather([executor.submit(x) for x in xs])
+                tell(xs, [outcome.objective for outcome in outcomes])
+            done += len(xs)
+            for outcome in outcomes:
+                if outcome.feasible and (best is None or outcome.objective < best):
+                    best = outcome.objective
     finally:
         executor.close()
     folder.mkdir(parents=True, exist_ok=True)
@@ -159,9 +203,10 @@ def measure(args, work: Path) -> dict:
                     region = "trust" if method == "ours" else "global"
                     with timer if method == "ours" else _nothing():
                         document = ours(spec, folder, seed, args.calls, args.workers, region)
-                elif method in ("skopt", "before"):
-                    document = skopt(spec, folder, seed, args.calls, args.workers,
-                                     before=method == "before")
+                elif method == "skopt":
+                    document = skopt(spec, folder, seed, args.calls, args.workers)
+                elif method == "before":
+                    document = before(spec, folder, seed, args.calls, args.workers)
                 else:
                     document = plain(spec, folder, seed, args.calls, args.workers, method)
                 rows.setdefault(method, []).append(best_of(document))
