@@ -30,7 +30,6 @@ def build_foreign(tool: str, script: Path, folder: Path, *project_files: Path) -
     assert done.returncode == 0, done.stdout + done.stderr
 
 
-
 def scheduled_only(source: Path, target: Path) -> Path:
     """A copy of the FMI 3.0 FMU ``source`` as a clocked FMU would come: its co-simulation
     interface renamed to scheduled execution, model exchange removed."""
@@ -47,6 +46,7 @@ def scheduled_only(source: Path, target: Path) -> Path:
                               flags=re.S).encode()
             out.writestr(name, data)
     return target
+
 
 def run_cli(capsys, *argv):
     """``furuta-cosim ARGV`` in-process: (exit code, stdout, stderr)."""

@@ -156,3 +156,26 @@ def test_the_kalman_scenario_runs_on_the_fmi3_plant_and_is_unfit_for_a_cosimulat
                         ("paper-step", "lqr-paper"): "pass", ("paper-step", "bo-paper"): "pass"}
     line = next(c for c in report.cases if c.status == "unfit").lines()[0]
     assert "through model exchange, which ForeignPendulum.fmu does not offer" in line
+
+
+def test_an_fmu_that_asks_to_end_fails_the_step_alike_on_both_step_paths(tmp_path):
+    """A doStep that answers OK but sets terminateSimulation ends the run with a step error
+    that says so, whether the step is one call into the compiled helper or three calls."""
+    from furuta_cosim.errors import FmuError
+
+    build_foreign("pythonfmu3", FOREIGN / "ending3_fmu.py", tmp_path)
+    errors = []
+    for one_call in (True, False):
+        with PlantSession.open(tmp_path / "EndingPlant3.fmu") as session:
+            assert isinstance(session, PlantSession3)
+            if not one_call:
+                session._step_io = session._step_three_calls
+            session.reset()
+            session.set_io(["u"], ["x"])
+            values = [session.step([1.0], 2e-3)[0] for _ in range(5)]  # up to t = 10 ms
+            with pytest.raises(FmuError) as failed:
+                session.step([1.0], 2e-3)
+            errors.append(str(failed.value))
+        np.testing.assert_allclose(values, 2e-3 * np.arange(1, 6), rtol=1e-12)
+    assert errors[0] == errors[1], errors
+    assert "fmi3DoStep at t = 0.01 failed: the FMU asked to end the simulation" in errors[0], errors
