@@ -445,9 +445,7 @@ class PlantSession:
         self._check(status, what)
 
     def _step_three_calls(self, call, t: float, h: float) -> int:
-        lib, c = self._lib, self._c
-        if c is None:
-            self._usable()
+        lib, c = self._lib, self._c  # a closed or fatally failed instance steps through _gone
         if self._n_in and (status := lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in)) >= 2:
             return 8 + status
         if (status := lib.fmi2DoStep(c, t, h, 1)) >= 2:
@@ -612,9 +610,7 @@ class PlantSession3(PlantSession):
         super()._step_failed(failed, inputs)
 
     def _step_three_calls(self, call, t: float, h: float) -> int:
-        lib, c = self._lib, self._c
-        if c is None:
-            self._usable()
+        lib, c = self._lib, self._c  # a closed or fatally failed instance steps through _gone
         if self._n_in and (status := lib.fmi3SetFloat64(c, self._in_vr, self._n_in, self._in, self._n_in)) >= 2:
             return 8 + status
         flags = call.flags  # as step_io3 does: its answers go to the call, 32 and 33 as there
