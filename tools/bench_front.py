@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from blas import check_kernel  # tools/blas.py: run as a script, tools/ is on the path
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.tuning import pareto
 from furuta_cosim.tuning.front import reach
@@ -167,6 +168,7 @@ def main() -> int:
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one); "
                                                "runs already finished there are reused")
     args = parser.parse_args()
+    kernel = check_kernel(args.kernel) if args.kernel else None  # before any long work
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown or not args.methods:
         parser.error(f"--methods: expected some of {', '.join(METHODS)}")
@@ -181,11 +183,11 @@ def main() -> int:
     (work / "bench.json").write_text(json.dumps(results, indent=1) + "\n")
     print("\n".join(table(results, args)))
     if args.kernel:
-        print("\n".join(kernel_spread(args, work, results)))
+        print("\n".join(kernel_spread(args, work, results, kernel)))
     return 0
 
 
-def kernel_spread(args, work: Path, results: dict) -> list[str]:
+def kernel_spread(args, work: Path, results: dict, kernel: str) -> list[str]:
     """The ``ours`` runs again under another BLAS kernel, measured against this run's reference."""
     child = work / f"kernel-{args.kernel}"
     command = [sys.executable, __file__, "--specs", *args.specs, "--seeds", str(args.seeds),
@@ -193,7 +195,7 @@ def kernel_spread(args, work: Path, results: dict) -> list[str]:
                "--reference", "0", "-o", str(child)]
     subprocess.run(command, env={**os.environ, "OPENBLAS_CORETYPE": args.kernel}, check=True,
                    stdout=subprocess.DEVNULL)
-    lines = ["", f"ours under OPENBLAS_CORETYPE={args.kernel} against the default kernel "
+    lines = ["", f"ours under OPENBLAS_CORETYPE={args.kernel} ({kernel}) against the default kernel "
                  "(hypervolume fractions against the reference front above):"]
     for name, data in results.items():
         names, point, best = data["criteria"], data["reference_point"], data["reference_hypervolume"]

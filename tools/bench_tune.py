@@ -44,6 +44,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from blas import check_kernel  # tools/blas.py: run as a script, tools/ is on the path
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.tuning import optimizers
 from furuta_cosim.tuning.run import tune
@@ -293,6 +294,7 @@ def main() -> int:
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one)")
     parser.add_argument("--json", help=argparse.SUPPRESS)  # a child's results (--kernel)
     args = parser.parse_args()
+    kernel = check_kernel(args.kernel) if args.kernel else None  # before any long work
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown:
         parser.error(f"--methods: unknown {', '.join(unknown)} (expected: {', '.join(METHODS)})")
@@ -317,7 +319,7 @@ def main() -> int:
                    "--best-known", "0", "-o", str(child), "--json", str(child / "results.json")]
         subprocess.run(command, env={**os.environ, "OPENBLAS_CORETYPE": args.kernel}, check=True)
         other = json.loads((child / "results.json").read_text())
-        print(f"\nours under OPENBLAS_CORETYPE={args.kernel} against the default kernel:")
+        print(f"\nours under OPENBLAS_CORETYPE={args.kernel} ({kernel}) against the default kernel:")
         for name in args.specs:
             mine, theirs = results[name]["rows"].get("ours", []), other[name]["rows"]["ours"]
             same = sum(1 for a, b in zip(mine, theirs) if a == b)
