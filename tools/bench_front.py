@@ -168,10 +168,12 @@ def main() -> int:
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one); "
                                                "runs already finished there are reused")
     args = parser.parse_args()
-    kernel = check_kernel(args.kernel) if args.kernel else None  # before any long work
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown or not args.methods:
         parser.error(f"--methods: expected some of {', '.join(METHODS)}")
+    if args.kernel and "ours" not in args.methods:
+        parser.error("--kernel compares the ours rows: --methods must include ours")
+    kernel = check_kernel(args.kernel) if args.kernel else None  # before any long work
     work = Path(args.output) if args.output else Path(tempfile.mkdtemp(prefix="bench-front-"))
     work.mkdir(parents=True, exist_ok=True)
     print(f"runs in {work}", file=sys.stderr)

@@ -294,10 +294,12 @@ def main() -> int:
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one)")
     parser.add_argument("--json", help=argparse.SUPPRESS)  # a child's results (--kernel)
     args = parser.parse_args()
-    kernel = check_kernel(args.kernel) if args.kernel else None  # before any long work
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown:
         parser.error(f"--methods: unknown {', '.join(unknown)} (expected: {', '.join(METHODS)})")
+    if args.kernel and "ours" not in args.methods:
+        parser.error("--kernel compares the ours rows: --methods must include ours")
+    kernel = check_kernel(args.kernel) if args.kernel else None  # before any long work
     work = Path(args.output) if args.output else Path(tempfile.mkdtemp(prefix="bench-tune-"))
     work.mkdir(parents=True, exist_ok=True)
     print(f"runs in {work}; OPENBLAS_CORETYPE={os.environ.get('OPENBLAS_CORETYPE', '(default)')}",
