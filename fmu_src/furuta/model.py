@@ -27,6 +27,25 @@ PHYSICAL_PARAMETERS = [
     ("N", "", "effective gear ratio in torque, back-EMF and reflected inertia", True),
 ]
 
+# what a real rig adds (model.c): each is absent at its default, so a parameter set that does
+# not name them (the paper's) runs the same numbers to the bit.
+# name, unit, description, default
+RIG_PARAMETERS = [
+    ("Tc0", "N.m", "Coulomb friction torque on the arm (0: none)", 0.0),
+    ("Tc1", "N.m", "Coulomb friction torque on the pendulum (0: none)", 0.0),
+    ("w_c", "rad/s", "speed below which Coulomb friction is smoothed: Tc tanh(speed / w_c)", 0.01),
+    ("K_c", "N.m/rad", "stiffness on the arm, the encoder cable (0: none)", 0.0),
+    ("theta0_rest", "rad", "arm angle at which the cable exerts no torque", 0.0),
+    ("theta0_min", "rad", "arm angle of the lower end stop", -3.0),
+    ("theta0_max", "rad", "arm angle of the upper end stop", 3.0),
+    ("K_stop", "N.m/rad", "stiffness of the end stops (0 with D_stop 0: no stops)", 0.0),
+    ("D_stop", "N.m.s/rad", "damping of the end stops, while in contact", 0.0),
+]
+
+# Coulomb friction has no linearization at zero speed (its smoothed slope Tc / w_c is an
+# artefact of the smoothing, not a damping): linear models of this plant leave it out
+NONSMOOTH = ["Tc0", "Tc1"]
+
 STATES = [
     ("theta0", "rad", "arm angle"),
     ("dtheta0", "rad/s", "arm angular velocity"),
@@ -56,6 +75,10 @@ def declare(parameters):
     for name, unit, description, positive in PHYSICAL_PARAMETERS:
         model.register_variable(Real(name, "parameter", start=float(parameters[name]), unit=unit,
                                      description=description, positive=positive))
+    for name, unit, description, default in RIG_PARAMETERS:
+        model.register_variable(Real(name, "parameter", start=float(parameters.get(name, default)),
+                                     unit=unit, description=description,
+                                     positive=name == "w_c"))
     model.register_variable(Real("V_max", "parameter", start=float(parameters["V_max"]),
                                  unit="V", description="voltage limit |V| <= V_max; 0 = no limit"))
     model.register_variable(Integer("n_substeps", int(parameters["n_substeps"]), minimum=1,
@@ -63,4 +86,5 @@ def declare(parameters):
                                     description="RK4 substeps per communication step"))
     model.substeps = "n_substeps"
     model.measured = list(MEASURED)
+    model.nonsmooth = list(NONSMOOTH)
     return model

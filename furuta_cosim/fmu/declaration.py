@@ -94,6 +94,7 @@ class Model:
     sample_period: str | None = None
     constants: dict[str, int] = field(default_factory=dict)
     measured: list[str] = field(default_factory=list)  # outputs a design model measures (all: empty)
+    nonsmooth: list[str] = field(default_factory=list)  # parameters a linear model leaves out (set to 0)
     # name -> value reference, kept as variables are registered (a linear plant or a controller
     # declares tens of thousands: a scan per registration made declaring quadratic)
     _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False)
