@@ -48,8 +48,10 @@ def cmd_linearize(args) -> int:
     else:
         if args.mapping:
             raise ConfigError(["--mapping: maps a plant FMU given with --fmu"])
-        plant, fmu, result = linearize_plant(args.params, args.inputs)
+        plant, fmu, result, note = linearize_plant(args.params, args.inputs)
         title = f"linearization of {fmu.name} with {plant.name}"
+        if note:
+            print(f"note: {note}", file=sys.stderr)
     if args.json:
         data = result.as_dict() if hasattr(result, "as_dict") else {
             "A": result.A.tolist(), "B": result.B.tolist(), "C": result.C.tolist(), "D": result.D.tolist(),
@@ -93,6 +95,8 @@ def cmd_design_lqr(args) -> int:
                              description=args.description, output=args.output)
     if design.path:
         print(f"wrote {design.path}", file=sys.stderr)
+    if design.model.provenance.get("note"):
+        print(f"note: {design.model.provenance['note']}", file=sys.stderr)
     cfile, model, analysis = design.cfile, design.model, design.analysis
     controller, K, result = cfile.controller, cfile.controller.K, design.as_dict()
     if args.json:
@@ -358,6 +362,81 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def cmd_replay(args) -> int:
+    from furuta_cosim.identify.replay import target_for
+    from furuta_cosim.identify.run import replay
+
+    target = target_for(plant=None if args.fmu else args.plant, fmu=args.fmu, mapping=args.mapping)
+    document = replay(args.experiments, target, output=args.output,
+                      log=lambda line: print(line, file=sys.stderr))
+    if args.json:
+        print(dumps(document))
+        return 0
+    print(f"replay on {document['plant']} (RMS of simulated - measured; angles also in degrees)")
+    for name, entry in document["experiments"].items():
+        if "failure" in entry:
+            print(f"FAIL  {name}: {entry['failure']}")
+            continue
+        for output, c in entry["outputs"].items():
+            degrees = f" ({c['rms'] * 57.29577951308232:.4g} deg)" if output.startswith("theta") else ""
+            period = c.get("period")
+            shown = (f", period {period['measured']:.5g} s measured, "
+                     + ("none simulated" if period["simulated"] is None else
+                        f"{period['simulated']:.5g} s simulated ({100 * period['error']:+.3f} %)")
+                     if period else "")
+            print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{shown}")
+    if args.output:
+        print(f"figures and replay.json in {args.output}")
+    failed = any("failure" in e for e in document["experiments"].values())
+    return EXIT_FAILED if failed else 0
+
+
+def cmd_identify(args) -> int:
+    import time
+    from pathlib import Path
+
+    from furuta_cosim.identify.run import identify
+    from furuta_cosim.progress import Progress
+
+    from furuta_cosim.identify.spec import load_identify_spec
+
+    budget = load_identify_spec(args.spec).max_simulations  # the bar's end: the fit's budget
+    out = Path(args.output or Path("runs") / "identify" / Path(args.spec).stem)
+    bar = Progress(delay=0.0, unit="simulation")
+    started = time.monotonic()
+
+    def progress(stage, n, cost):
+        bar(stage, n, budget, f"cost {cost:.6g}, {n / max(time.monotonic() - started, 1e-9):.0f}/s")
+
+    try:
+        document = identify(args.spec, out, workers=_workers(args), dask=args.dask,
+                            progress=progress, log=lambda line: (bar.close(), print(line, file=sys.stderr)))
+    finally:
+        bar.close()
+    if args.json:
+        print(dumps(document))
+        return 0
+    width = max(len(n) for n in document["parameters"])
+    print(f"{'parameter':{width}s}  {'start':>11s}  {'fitted':>11s}  95 % interval")
+    for name, p in document["parameters"].items():
+        lo, hi = p["interval"]
+        print(f"{name:{width}s}  {p['start']:11.5g}  {p['value']:11.5g}  [{lo:.4g}, {hi:.4g}]"
+              + ("  at a bound" if p["at_bound"] else ""))
+    for a, b, r in document["not_separable"]:
+        print(f"not separable: {a} and {b} (correlation {r:+.3f})")
+    for kind in ("experiments", "validation"):
+        for name, outputs in document[kind].items():
+            for output, c in outputs.items():
+                start = document["at_start"][name][output]["rms"]
+                period = c.get("period", {}).get("error")
+                print(f"{'validation ' if kind == 'validation' else ''}{name} {output}: RMS {start:.4g} -> "
+                      f"{c['rms']:.4g}" + (f" ({c['rms'] * 57.29577951308232:.4g} deg)" if output.startswith("theta") else "")
+                      + ("" if period is None else f", period {100 * period:+.3f} %"))
+    print(f"{document['simulations']} simulations in {document['seconds']:.1f} s; "
+          f"plant.yaml, fit.json and report.html in {out}")
+    return 0
+
+
 def cmd_list(args) -> int:
     from furuta_cosim.shipped import listing
 
@@ -510,6 +589,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tuning calls: quick 30, full 150 (the paper's)")
     p.add_argument("--workers", type=int, help="worker processes for the tunings (default: one per core)")
     p.set_defaults(handler=cmd_reproduce)
+
+    p = commands.add_parser("replay", help="run logged inputs open loop on a plant and compare with the log")
+    p.add_argument("experiments", nargs="+", help="experiment files (YAML naming a CSV log)")
+    p.add_argument("--plant", default="furuta", help="plant file or name (default: furuta)")
+    p.add_argument("--fmu", help="a plant FMU from another tool instead of --plant")
+    p.add_argument("--mapping", metavar="FILE", help="for --fmu: its names and units (as regress --mapping)")
+    p.add_argument("-o", "--output", metavar="DIR", help="write overlay and residual figures and replay.json there")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(handler=cmd_replay)
+
+    p = commands.add_parser("identify", help="fit plant parameters to measured logs (an identify spec)")
+    p.add_argument("spec", help="identify spec file or name in scenarios/identify (qube-servo-3)")
+    p.add_argument("-o", "--output", metavar="DIR", help="run directory (default runs/identify/<spec>)")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1: this process)")
+    p.add_argument("--dask", metavar="ADDRESS", help="simulate on a Dask scheduler, or 'local'")
+    p.add_argument("--json", action="store_true", help="print fit.json")
+    p.set_defaults(handler=cmd_identify)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

@@ -41,7 +41,8 @@ class Design:
                 "period": controller.period, "model": self.model.name,
                 "stable": self.analysis.stable,
                 "prefilter": {"output": self.cfile.tracked_output, "F": self.cfile.F},
-                "method": controller.provenance["method"]}
+                "method": controller.provenance["method"],
+                "notes": [self.model.provenance["note"]] if self.model.provenance.get("note") else []}
 
 
 def analyze_file(controller: str | Path, model: str | None = None) -> Design:

@@ -51,25 +51,47 @@ def derived(parameter_set: str | Path = "paper-calibrated", beside: Path | None 
         raise ConfigError([f"{plant.path}: a linear plant has no 'derived' model; use its name"])
     model = declaration(plant)
     inputs = [v.name for v in model.reals if v.causality == "input"]
-    result = linearize(build_fmu(plant), parameters=dict(plant.parameters), inputs={inputs[0]: 0.0},
+    parameters, note = without_nonsmooth(plant, model)
+    result = linearize(build_fmu(plant), parameters=parameters, inputs={inputs[0]: 0.0},
                        outputs=list(model.measured) or None)
     name = "derived" if plant.name == "paper-calibrated" else f"derived:{plant.name}"
+    provenance = {"linearized": plant.name}
+    if note:
+        provenance["note"] = note
     return LinearModel(name, result.A, result.B, result.C, result.D, tuple(result.states),
-                       tuple(result.inputs), tuple(result.outputs), 0.0,
-                       {"linearized": plant.name})
+                       tuple(result.inputs), tuple(result.outputs), 0.0, provenance)
+
+
+def without_nonsmooth(plant, model) -> tuple[dict, str]:
+    """The plant's parameters for linearization, with the model's nonsmooth terms (Coulomb
+    friction) set to 0, and a line saying so when any was present (else empty)."""
+    parameters = dict(plant.parameters)
+    present = {n: parameters[n] for n in model.nonsmooth if parameters.get(n, 0.0) != 0.0}
+    if not present:
+        return parameters, ""
+    parameters.update({n: 0.0 for n in present})
+    listed = ", ".join(f"{n} = {v:g}" for n, v in present.items())
+    return parameters, (f"Coulomb friction ({listed}) is left out of the linear model: at zero "
+                        "speed it has no derivative (its smoothed slope is an artefact of the "
+                        "smoothing); the nonlinear plant keeps it")
 
 
 def linearize_plant(parameter_set: str | Path, inputs=None):
     """The plant FMU of ``parameter_set`` built and linearized at its start state with the
-    ``inputs`` named (all, when None) at 0; returns (plant, fmu path, Linearization)."""
+    ``inputs`` named (all, when None) at 0; returns (plant, fmu path, Linearization, note):
+    the note says what the linear model leaves out (Coulomb friction), else it is empty."""
     from furuta_cosim.fmu.exporter import build_fmu
     from furuta_cosim.fmu.linearize import linearize
 
+    from furuta_cosim.fmu.exporter import declaration
+
     plant = load_plant(parameter_set)
     fmu = build_fmu(plant)
-    result = linearize(fmu, parameters=dict(plant.parameters),
+    parameters, note = without_nonsmooth(plant, declaration(plant)) if plant.linear is None else (
+        dict(plant.parameters), "")
+    result = linearize(fmu, parameters=parameters,
                        inputs={name: 0.0 for name in inputs} if inputs else None)
-    return plant, fmu, result
+    return plant, fmu, result, note
 
 
 def _beside(name: str, folder: Path | None) -> Path:

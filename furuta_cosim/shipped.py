@@ -41,4 +41,6 @@ def listing() -> dict[str, dict[str, str]]:
         "scenarios": {n: str(d.get("description", "")) for n, d in _descriptions(paths.scenarios()).items()},
         "tuning": {n: str(d.get("description", ""))
                    for n, d in _descriptions(paths.scenarios() / "tuning").items()},
+        "identify": {n: str(d.get("description", ""))
+                     for n, d in _descriptions(paths.scenarios() / "identify").items()},
     }

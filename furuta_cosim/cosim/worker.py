@@ -60,15 +60,23 @@ def _watch_parent(parent: int) -> None:
     threading.Thread(target=watch, name="watch-parent", daemon=True).start()
 
 
-def start_pool(workers: int):
+def _start_worker(parent: int, setup, setup_args) -> None:
+    _watch_parent(parent)
+    if setup is not None:
+        setup(*setup_args)
+
+
+def start_pool(workers: int, setup=None, setup_args: tuple = ()):
     """A pool of ``workers`` local processes, each with one BLAS thread, each ending when
-    this process ends."""
+    this process ends; ``setup(*setup_args)`` runs first in each (what every task shares, sent
+    once per worker)."""
     from concurrent.futures import ProcessPoolExecutor
 
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
     os.environ.update(SINGLE_THREAD)  # inherited by the workers
     try:
-        return ProcessPoolExecutor(workers, initializer=_watch_parent, initargs=(os.getpid(),))
+        return ProcessPoolExecutor(workers, initializer=_start_worker,
+                                   initargs=(os.getpid(), setup, setup_args))
     finally:
         for key, value in saved.items():
             if value is None:

@@ -117,11 +117,14 @@ def _load(path: Path, seen: tuple) -> PlantSet:
             check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
         parameters.update(base.parameters)
     parameters.update(check.numbers(top.get("parameters", {}), "parameters"))
+    if "provenance" in top:  # where the values come from (identify writes it): read by people only
+        check.mapping(top["provenance"], "provenance", optional=tuple(top["provenance"])
+                      if isinstance(top["provenance"], dict) else ())
     check.done()
     return PlantSet(path.stem, path, model, str(description), Frozen(parameters))
 
 
-_NONLINEAR_KEYS = ("description", "extends", "parameters")
+_NONLINEAR_KEYS = ("description", "extends", "parameters", "provenance")
 _LINEAR_KEYS = ("description", "identifier", "time", "period", "substeps", "A", "B", "C", "D",
                 "inputs", "outputs", "time_unit", "states", "x0")
 # an identifier names the FMU's C functions and files: no C keyword, no FMI name

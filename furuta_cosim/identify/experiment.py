@@ -1,0 +1,367 @@
+"""Experiment files: a measured log (CSV) and what it says about the plant.
+
+An experiment file names the CSV beside it, its columns, which columns are plant inputs
+(applied zero-order hold from each sample to the next) and which are plant outputs (with
+their units, offsets, encoder quantum and noise), the initial states and the plant
+parameters that differ in this experiment. Reading it checks everything that can be checked
+without an FMU; every problem names the file and the key, or the CSV and its row.
+
+    experiment = load_experiment("scenarios/rigs/qube-servo-3/free-swing.yaml")
+    experiment.t, experiment.outputs["theta1"].values
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from furuta_cosim.config import Checker, Frozen, excerpt, load_yaml, plain_name
+from furuta_cosim.errors import ConfigError
+
+# unit -> factor to SI (rad, rad/s, A, V, s): value_SI = (value + offset) * factor
+UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi, "rad/s": 1.0,
+         "deg/s": math.pi / 180.0, "rpm": 2.0 * math.pi / 60.0, "A": 1.0, "mA": 1e-3, "V": 1.0,
+         "s": 1.0, "ms": 1e-3}
+MAX_CSV_BYTES = 200_000_000
+# two successive sample times may differ from the mean period by this fraction (loggers print
+# rounded times); beyond it the log is refused: nothing here resamples
+UNIFORM_TOLERANCE = 0.01
+LINE = "\0line"  # read_csv's entry for the line number of each row in the file
+_KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
+         "outputs", "start", "parameters", "delimiter")
+_SIGNAL_KEYS = ("column", "unit", "scale", "offset")
+
+
+@dataclass(frozen=True)
+class Measured:
+    """One measured output in SI units, with the standard deviation that weights its residuals
+    (``sigma``: from ``noise`` and ``quantum``, else estimated from the data; ``sigma_from``
+    says which)."""
+
+    column: str
+    values: np.ndarray
+    sigma: float
+    sigma_from: str
+    bias: "Free | None" = None   # an unknown zero error of the sensor (SI), fitted
+
+
+@dataclass(frozen=True)
+class Free:
+    """An initial state the fit chooses within ``bounds`` (``start``: its first guess)."""
+
+    bounds: tuple[float, float]
+    start: float
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A checked experiment: ``t`` the window's sample times (s), ``period`` their spacing."""
+
+    name: str
+    description: str
+    path: Path
+    data: Path
+    sha256: str
+    t: np.ndarray
+    period: float
+    inputs: Mapping[str, np.ndarray | float]
+    outputs: Mapping[str, Measured]
+    start: Mapping[str, float | Free]
+    parameters: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
+
+    @property
+    def samples(self) -> int:
+        return len(self.t)
+
+    def free_starts(self) -> dict[str, Free]:
+        """What the fit chooses besides plant parameters: free initial states (by state
+        name) and sensor biases (``<output>.bias``)."""
+        found = {name: value for name, value in self.start.items() if isinstance(value, Free)}
+        found.update({f"{name}.bias": m.bias for name, m in self.outputs.items() if m.bias is not None})
+        return found
+
+    def corrected(self, simulated: Mapping[str, np.ndarray], values: Mapping[str, float]) -> dict:
+        """The simulated outputs as the sensors would read them: plus each fitted bias."""
+        return {name: y + values.get(f"{self.name}.{name}.bias", 0.0) for name, y in simulated.items()}
+
+    def input_at(self, name: str) -> np.ndarray:
+        """The input over every sample of the window (a constant repeated)."""
+        value = self.inputs[name]
+        return np.full(self.samples, float(value)) if np.isscalar(value) else value
+
+    def truncated(self, seconds: float) -> "Experiment":
+        """The first ``seconds`` of the window (at least two samples): the growing-horizon fit
+        starts on these."""
+        keep = max(2, int(np.searchsorted(self.t, self.t[0] + seconds, side="right")))
+        if keep >= self.samples:
+            return self
+        from dataclasses import replace
+
+        inputs = {k: v if np.isscalar(v) else v[:keep] for k, v in self.inputs.items()}
+        outputs = {k: replace(m, values=m.values[:keep]) for k, m in self.outputs.items()}
+        return replace(self, t=self.t[:keep], inputs=Frozen(inputs), outputs=Frozen(outputs))
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Read and check an experiment file and its CSV; raises ConfigError naming the file and
+    the key (or the CSV and its row) of every problem."""
+    path = Path(path)
+    data = load_yaml(path)
+    check = Checker(path)
+    top = check.mapping(data, "", required=("data", "columns", "time", "outputs"), optional=_KEYS)
+    check.done()
+    name = check.file_name(top.get("name", path.stem), "name") if "name" in top else path.stem
+    if not plain_name(name or ""):
+        check.fail("name", f"the file's name {excerpt(path.stem)} is not a plain name: give a name: key")
+    description = check.text(top.get("description", ""), "description")
+    columns = check.names(top["columns"], "columns")
+    header = check.number(top.get("header", 1), "header", minimum=0, integer=True)
+    delimiter = top.get("delimiter", ",")
+    if not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\r\n\"'0123456789.-+eE":
+        check.fail("delimiter", f"expected one character that cannot be part of a number, got {excerpt(str(delimiter))}")
+    time_column = check.string(top["time"], "time")
+    if columns and time_column and time_column not in columns:
+        check.fail("time", f"{excerpt(time_column)} is not one of columns ({', '.join(columns)})")
+    csv = _csv_path(check, top["data"], path)
+    check.done()
+    table = read_csv(csv, columns, header, delimiter)
+    t = table[time_column]
+    first, last = _window(check, top.get("window"), t, csv, table[LINE])
+    check.done()
+    keep = slice(first, last)
+    t = t[keep]
+    if len(t) < 2:
+        check.fail("window", f"holds {len(t)} sample(s) of {csv.name}: at least 2 are needed")
+        check.done()
+    period = _uniform(check, t, csv, table[LINE][keep])
+    inputs = _inputs(check, top.get("inputs", {}), table, columns, keep)
+    outputs = _outputs(check, top["outputs"], table, columns, keep)
+    start = _start(check, top.get("start", {}), outputs)
+    parameters = check.numbers(top.get("parameters", {}), "parameters")
+    check.done()
+    digest = hashlib.sha256(csv.read_bytes()).hexdigest()
+    return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
+                      Frozen(outputs), Frozen(start), parameters)
+
+
+def _csv_path(check: Checker, value, path: Path) -> Path | None:
+    text = check.string(value, "data")
+    if text is None:
+        return None
+    csv = Path(text)
+    csv = csv if csv.is_absolute() else path.parent / csv
+    if not csv.is_file():
+        check.fail("data", f"{csv}: no such file")
+        return None
+    return csv
+
+
+def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") -> dict[str, np.ndarray]:
+    """The CSV's numbers by column; one problem (the first bad row) raises ConfigError."""
+    try:
+        size = path.stat().st_size
+        if size > MAX_CSV_BYTES:
+            raise ConfigError([f"{path}: larger than {MAX_CSV_BYTES // 1_000_000} MB"])
+        raw = path.read_bytes()
+    except OSError as error:
+        raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
+    if b"\x00" in raw:
+        raise ConfigError([f"{path}: not a text file (it holds NUL bytes)"])
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise ConfigError([f"{path}: not a text file (not UTF-8)"]) from None
+    lines = text.splitlines()
+    if len(lines) <= header:
+        raise ConfigError([f"{path}: {len(lines)} line(s), all of them header (header: {header}): no data"])
+    rows, numbers = [], []
+    for number, line in enumerate(lines[header:], start=header + 1):
+        if not line.strip():
+            continue
+        fields = line.split(delimiter)
+        if len(fields) != len(columns):
+            raise ConfigError([f"{path}: line {number}: {len(fields)} field(s), but columns names "
+                               f"{len(columns)} ({', '.join(columns)})"])
+        row = []
+        for name, cell in zip(columns, fields):
+            try:
+                value = float(cell)
+            except ValueError:
+                raise ConfigError([f"{path}: line {number}, column {name}: not a number "
+                                   f"({excerpt(cell.strip())})"]) from None
+            if not math.isfinite(value):
+                raise ConfigError([f"{path}: line {number}, column {name}: {cell.strip()} is not a "
+                                   "finite number"])
+            row.append(value)
+        rows.append(row)
+        numbers.append(number)
+    if not rows:
+        raise ConfigError([f"{path}: no data after the {header} header line(s)"])
+    table = np.array(rows, dtype=float)
+    found = {name: table[:, k].copy() for k, name in enumerate(columns)}
+    found[LINE] = np.array(numbers)
+    return found
+
+
+def _window(check: Checker, value, t: np.ndarray, csv: Path, lines: np.ndarray) -> tuple[int, int]:
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        k = int(np.argmax(steps <= 0))
+        check.fail("time", f"{csv.name}: line {lines[k + 1]}: time does not increase "
+                           f"({t[k]:g} then {t[k + 1]:g})")
+        return 0, 0
+    if value is None:
+        return 0, len(t)
+    bounds = check.vector(value, "window", 2)
+    if bounds is None:
+        return 0, 0
+    lo, hi = bounds
+    if not lo < hi:
+        check.fail("window", f"expected [start, end] with start < end, got [{lo:g}, {hi:g}]")
+        return 0, 0
+    first, last = int(np.searchsorted(t, lo, side="left")), int(np.searchsorted(t, hi, side="right"))
+    if last - first < 2:
+        check.fail("window", f"[{lo:g}, {hi:g}] s holds {max(last - first, 0)} sample(s) of "
+                             f"{csv.name} (its time runs from {t[0]:g} to {t[-1]:g} s)")
+    return first, last
+
+
+def _uniform(check: Checker, t: np.ndarray, csv: Path, lines: np.ndarray) -> float:
+    period = float(t[-1] - t[0]) / (len(t) - 1)
+    steps = np.diff(t)
+    typical = float(np.median(steps))  # a single odd step stands out from the median, not the mean
+    off = np.abs(steps - typical) > UNIFORM_TOLERANCE * typical
+    if np.any(off):
+        k = int(np.argmax(off))
+        check.fail("time", f"{csv.name}: line {lines[k + 1]}: not sampled uniformly: the step "
+                           f"before it is {steps[k]:g} s, the others {typical:g} s "
+                           "(resample the log to a constant period; nothing here resamples)")
+    return period
+
+
+def _signal(check: Checker, entry, key: str, table, columns, keep, extra=()) -> tuple | None:
+    """(SI values, factor to SI, the entry) of {column, unit | scale, offset, ...}."""
+    section = check.mapping(entry, key, required=("column",), optional=_SIGNAL_KEYS + extra)
+    if not section or "column" not in section:
+        return None
+    column = check.string(section["column"], f"{key}.column")
+    if column is None:
+        return None
+    if column not in columns:
+        check.fail(f"{key}.column", f"{excerpt(column)} is not one of columns ({', '.join(columns)})")
+        return None
+    if "unit" in section and "scale" in section:
+        check.fail(key, "give unit or scale, not both")
+        return None
+    factor = 1.0
+    if "unit" in section:
+        unit = section["unit"]
+        if unit not in UNITS:
+            check.fail(f"{key}.unit", f"unknown unit {excerpt(str(unit))} (known: {', '.join(UNITS)}; "
+                                      "scale: a factor to SI for anything else)")
+            return None
+        factor = UNITS[unit]
+    elif "scale" in section:
+        factor = check.number(section["scale"], f"{key}.scale")
+        if factor == 0:
+            check.fail(f"{key}.scale", "must not be 0")
+            return None
+    offset = check.number(section.get("offset", 0.0), f"{key}.offset")
+    if factor is None or offset is None:
+        return None
+    return (table[column][keep] + offset) * factor, abs(factor), section
+
+
+def _inputs(check: Checker, value, table, columns, keep) -> dict:
+    section = check.mapping(value, "inputs", optional=tuple(value) if isinstance(value, dict) else ())
+    found = {}
+    for name, entry in (section or {}).items():
+        key = f"inputs.{name}"
+        if isinstance(entry, (int, float)) and not isinstance(entry, bool):
+            number = check.number(entry, key)
+            if number is not None:
+                found[str(name)] = number
+            continue
+        signal = _signal(check, entry, key, table, columns, keep)
+        if signal is not None:
+            found[str(name)] = signal[0]
+    return found
+
+
+def _outputs(check: Checker, value, table, columns, keep) -> dict[str, Measured]:
+    section = check.mapping(value, "outputs", optional=tuple(value) if isinstance(value, dict) else ())
+    if section is not None and not section:
+        check.fail("outputs", "names no output: a fit needs at least one measured output")
+    found = {}
+    for name, entry in (section or {}).items():
+        key = f"outputs.{name}"
+        signal = _signal(check, entry, key, table, columns, keep, extra=("quantum", "noise", "bias"))
+        if signal is None:
+            continue
+        values, factor, raw = signal
+        quantum = check.number(raw.get("quantum", 0.0), f"{key}.quantum", minimum=0.0)
+        noise = check.number(raw.get("noise", 0.0), f"{key}.noise", minimum=0.0)
+        if quantum is None or noise is None:
+            continue
+        variance = (noise * factor) ** 2 + (quantum * factor) ** 2 / 12.0
+        if variance > 0:
+            sigma, source = math.sqrt(variance), "+".join(k for k in ("noise", "quantum") if raw.get(k))
+        else:
+            sigma, source = estimated_noise(values), "estimated"
+        bias = None
+        if "bias" in raw:
+            entry = check.mapping(raw["bias"], f"{key}.bias", required=("free",))
+            bounds = check.vector(entry.get("free"), f"{key}.bias.free", 2) if entry and "free" in entry else None
+            if bounds is not None and not bounds[0] < 0.0 < bounds[1]:
+                check.fail(f"{key}.bias.free", f"expected [lo, hi] with lo < 0 < hi, got {bounds}")
+            elif bounds is not None:
+                bias = Free((bounds[0] * factor, bounds[1] * factor), 0.0)
+        found[str(name)] = Measured(raw["column"], values, sigma, source, bias)
+    return found
+
+
+def estimated_noise(values: np.ndarray) -> float:
+    """The measurement noise of a smooth signal, from its second differences (white noise of
+    standard deviation s gives second differences of standard deviation s * sqrt(6)); never
+    below a millionth of the signal's largest magnitude, so a constant column weighs finitely."""
+    floor = 1e-6 * max(float(np.max(np.abs(values))), 1e-12)
+    if len(values) < 3:
+        return floor
+    return max(float(np.std(np.diff(values, 2))) / math.sqrt(6.0), floor)
+
+
+def _start(check: Checker, value, outputs: Mapping[str, Measured]) -> dict:
+    section = check.mapping(value, "start", optional=tuple(value) if isinstance(value, dict) else ())
+    found = {}
+    for name, entry in (section or {}).items():
+        key = f"start.{name}"
+        if entry == "data":
+            if name not in outputs:
+                check.fail(key, f"'data' takes the measured {name} at the window's start, but "
+                                f"outputs names no {name} (outputs: {', '.join(outputs) or 'none'})")
+            else:
+                found[str(name)] = float(outputs[name].values[0])
+        elif isinstance(entry, dict):
+            free = check.mapping(entry, key, required=("free",))
+            bounds = check.vector(free.get("free"), f"{key}.free", 2) if free and "free" in free else None
+            if bounds is None:
+                continue
+            lo, hi = bounds
+            if not lo < hi:
+                check.fail(f"{key}.free", f"expected [lo, hi] with lo < hi, got [{lo:g}, {hi:g}]")
+                continue
+            guess = float(outputs[name].values[0]) if name in outputs else 0.5 * (lo + hi)
+            found[str(name)] = Free((lo, hi), min(max(guess, lo), hi))
+        else:
+            if isinstance(entry, str):
+                check.fail(key, f"expected a number, 'data' or {{free: [lo, hi]}}, got {excerpt(entry)}")
+                continue
+            number = check.number(entry, key)
+            if number is not None:
+                found[str(name)] = number
+    return found

@@ -1,0 +1,462 @@
+"""The fit: plant parameters by least squares on simulated outputs (scipy's ``least_squares``).
+
+Every residual evaluation is a co-simulation of an experiment through the project's plant
+session; the experiments of one evaluation and the columns of a finite-difference Jacobian
+run at once on the worker processes (or Dask). Residuals are ``(simulated - measured) /
+sigma`` per sample, ``sigma`` from each output's noise and encoder quantum.
+
+A long log is fitted in stages: the first seconds of every experiment's window first, then
+longer ones (``horizon``; by default a sixteenth of the longest window, an eighth, a quarter
+and a half), then the whole windows, each stage starting from the last one's
+values, so that a swing whose period is far off at the start cannot trap the fit in a phase
+slip.
+
+Intervals. The residuals of a fit to a real log are far from independent (a small misfit in
+a swing is the same misfit for hundreds of samples), so the textbook covariance
+``s^2 (J^T J)^-1`` is too narrow. The covariance here is the Newey-West sandwich
+``(J^T J)^-1 S (J^T J)^-1``: ``S`` the long-run covariance of the score ``J_t r_t`` of each
+(experiment, output) series, summed over lags with Bartlett weights up to a window chosen
+from the series' own integrated autocorrelation time (Sokal's rule: the smallest window
+M >= 5 tau(M)). Intervals are value +- 1.96 standard errors (95 %).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.identify.experiment import Experiment
+from furuta_cosim.identify.replay import SimulationFailed, Target, check_names, open_session, simulate
+from furuta_cosim.identify.spec import IdentifySpec
+
+Z95 = 1.959963984540054
+NOT_SEPARABLE = 0.95
+# the residual of a sample whose simulation failed at a trial point: large, so that
+# least_squares rejects the step and shrinks its trust region
+FAILED_RESIDUAL = 1e4
+_INTERVALS = ("Newey-West sandwich covariance (Bartlett weights, window from each residual "
+              "series' integrated autocorrelation time); 95 % = +-1.96 standard errors")
+
+# -- evaluation in workers ----------------------------------------------------------------
+_CONTEXT: dict = {}
+_SESSIONS: dict = {}
+
+
+def _set_context(target: Target, experiments: Sequence[Experiment]) -> None:
+    _CONTEXT["target"], _CONTEXT["experiments"] = target, list(experiments)
+    _CONTEXT["cut"] = {}
+
+
+def _experiment(index: int, horizon: float | None) -> Experiment:
+    experiment = _CONTEXT["experiments"][index]
+    if horizon is None:
+        return experiment
+    key = (index, horizon)
+    cut = _CONTEXT["cut"].get(key)
+    if cut is None:
+        cut = _CONTEXT["cut"][key] = experiment.truncated(horizon)
+    return cut
+
+
+def run_task(task) -> tuple:
+    """One simulation: ``(experiment index, horizon, values)`` -> ``(outputs, None)`` or
+    ``(None, why it failed)``; the session of this process is opened on first use."""
+    index, horizon, values = task
+    target = _CONTEXT["target"]
+    session = _SESSIONS.get(target.fmu)
+    if session is not None and not session.usable:
+        session.close()
+        session = None
+    if session is None:
+        from furuta_cosim.fmu.session import PlantSession
+
+        session = _SESSIONS[target.fmu] = PlantSession.open(target.fmu)
+    try:
+        return simulate(session, target, _experiment(index, horizon), values), None
+    except SimulationFailed as error:
+        return None, str(error)
+
+
+def _run_with(context, task) -> tuple:  # a Dask worker: the context arrives with the task
+    if _CONTEXT.get("key") != context[2]:
+        _set_context(context[0], context[1])
+        _CONTEXT["key"] = context[2]
+    return run_task(task)
+
+
+class Runner:
+    """Runs simulations in this process (``workers=1``), on local worker processes, or on
+    Dask (``dask``: an address or ``local``); ``map`` keeps the order of its tasks."""
+
+    def __init__(self, target: Target, experiments: Sequence[Experiment], workers: int = 1,
+                 dask: str | None = None):
+        self.count = 0
+        self._pool = self._client = self._cluster = None
+        if dask is not None:
+            self._start_dask(target, experiments, dask, workers)
+        elif workers > 1:
+            from furuta_cosim.cosim.worker import start_pool
+
+            self._pool = start_pool(workers, _set_context, (target, list(experiments)))
+        else:
+            _set_context(target, experiments)
+        self.where = ("on Dask" if dask else f"on {workers} worker processes" if workers > 1
+                      else "in this process")
+
+    def _start_dask(self, target, experiments, address, workers) -> None:
+        from furuta_cosim.cosim.worker import SINGLE_THREAD
+        from furuta_cosim.tuning.executors import check_address
+
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
+        check_address(address)
+        if address == "local":
+            self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, env=SINGLE_THREAD)
+            self._client = Client(self._cluster)
+        else:
+            try:
+                self._client = Client(address, timeout="30s")
+            except (OSError, TimeoutError) as error:
+                raise ConfigError([f"--dask {address}: no Dask scheduler answers there ({error})"]) from None
+        context = (target, list(experiments), f"{id(self)}-{time.time_ns()}")
+        [self._context] = self._client.scatter([context], broadcast=True)
+
+    def map(self, tasks: Sequence) -> list[tuple]:
+        self.count += len(tasks)
+        if self._client is not None:
+            futures = [self._client.submit(_run_with, self._context, task, pure=False) for task in tasks]
+            return self._client.gather(futures)
+        if self._pool is not None:
+            return list(self._pool.map(run_task, tasks))
+        return [run_task(task) for task in tasks]
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+        if self._client is not None:
+            self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+        while _SESSIONS:
+            _SESSIONS.popitem()[1].close()
+
+
+# -- the problem ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Unknown:
+    """A fitted value: a plant parameter, or an experiment's free initial state
+    (``<experiment>.<state>``); fitted as ``value / scale``."""
+
+    name: str
+    start: float
+    bounds: tuple[float, float]
+    scale: float
+
+
+def unknowns(spec: IdentifySpec, plant_values: Mapping[str, float]) -> list[Unknown]:
+    found = []
+    for p in spec.free:
+        start = p.start if p.start is not None else plant_values.get(p.name)
+        if start is None:
+            raise ConfigError([f"{spec.path}: free.{p.name}: give a start (the plant has no value for it)"])
+        start = min(max(float(start), p.bounds[0]), p.bounds[1])
+        found.append(Unknown(p.name, start, p.bounds, _scale(start, p.bounds)))
+    for experiment in spec.experiments:
+        for state, free in experiment.free_starts().items():  # states and sensor biases
+            found.append(Unknown(f"{experiment.name}.{state}", free.start, free.bounds,
+                                 _scale(free.start, free.bounds)))
+    return found
+
+
+def _scale(start: float, bounds: tuple[float, float]) -> float:
+    """A typical size: the start's magnitude, else a hundredth of the larger bound's."""
+    return abs(start) if start != 0 else max(abs(bounds[0]), abs(bounds[1])) / 100.0
+
+
+class Problem:
+    """The residual vector and its finite-difference Jacobian over a set of experiments."""
+
+    def __init__(self, runner: Runner, experiments: Sequence[Experiment], items: Sequence[Unknown],
+                 horizon: float | None, budget: int, progress: Callable[[int, float], None]):
+        self.runner, self.items, self.horizon = runner, list(items), horizon
+        self.experiments = [e.truncated(horizon) if horizon else e for e in experiments]
+        self.budget, self.progress = budget, progress
+        self.best_cost = math.inf
+        self._cache: dict = {}
+
+    def values(self, x: np.ndarray) -> dict[str, float]:
+        return {u.name: float(v) * u.scale for u, v in zip(self.items, x)}
+
+    def _residuals(self, results, values) -> np.ndarray:
+        parts = []
+        for experiment, (outputs, failure) in zip(self.experiments, results):
+            if outputs is not None:
+                outputs = experiment.corrected(outputs, values)
+            for name, measured in experiment.outputs.items():
+                if outputs is None:
+                    parts.append(np.full(experiment.samples, FAILED_RESIDUAL))
+                else:
+                    parts.append((outputs[name] - measured.values) / measured.sigma)
+        return np.concatenate(parts)
+
+    def _evaluate(self, xs: Sequence[np.ndarray]) -> list[np.ndarray]:
+        missing = [x for x in xs if x.tobytes() not in self._cache]
+        if missing and self.runner.count >= self.budget:
+            raise BudgetSpent()
+        tasks = [(k, self.horizon, self.values(x)) for x in missing for k in range(len(self.experiments))]
+        results = self.runner.map(tasks) if tasks else []
+        n = len(self.experiments)
+        for j, x in enumerate(missing):
+            r = self._residuals(results[j * n:(j + 1) * n], self.values(x))
+            self._cache[x.tobytes()] = r
+            self.best_cost = min(self.best_cost, 0.5 * float(r @ r))
+        self.progress(self.runner.count, self.best_cost)
+        return [self._cache[x.tobytes()] for x in xs]
+
+    def fun(self, x: np.ndarray) -> np.ndarray:
+        return self._evaluate([np.asarray(x, dtype=float)])[0]
+
+    def steps(self, x: np.ndarray) -> np.ndarray:
+        """Forward-difference steps, turned backward at an upper bound."""
+        h = 1e-6 * np.maximum(np.abs(x), 1.0)
+        upper = np.array([u.bounds[1] / u.scale for u in self.items])
+        return np.where(x + h > upper, -h, h)
+
+    def jac(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        h = self.steps(x)
+        shifted = [x + np.eye(len(x))[j] * h[j] for j in range(len(x))]
+        results = self._evaluate([x] + shifted)
+        return np.column_stack([(r - results[0]) / hj for r, hj in zip(results[1:], h)])
+
+    def outputs_at(self, x: np.ndarray, experiments: Sequence[Experiment], offset: int = 0) -> list:
+        tasks = [(offset + k, None, self.values(x)) for k in range(len(experiments))]
+        return self.runner.map(tasks)
+
+
+class BudgetSpent(RuntimeError):
+    """The fit reached its spec's ``max_simulations``."""
+
+
+# -- intervals ------------------------------------------------------------------------------
+def autocorrelation_time(series: np.ndarray, c: float = 5.0) -> tuple[float, int]:
+    """(tau, window): the integrated autocorrelation time of ``series`` with Sokal's automatic
+    window (the smallest M with M >= c tau(M)), through the FFT."""
+    x = np.asarray(series, dtype=float) - np.mean(series)
+    n = len(x)
+    if n < 4 or not np.any(x):
+        return 1.0, 0
+    size = 1 << (2 * n - 1).bit_length()
+    f = np.fft.rfft(x, size)
+    acf = np.fft.irfft(f * np.conjugate(f), size)[:n]
+    acf /= acf[0]
+    taus = 2.0 * np.cumsum(acf) - 1.0
+    window = np.arange(n) >= c * taus
+    m = int(np.argmax(window)) if np.any(window) else n - 1
+    return max(float(taus[m]), 1.0), m
+
+
+def sandwich(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(Newey-West covariance, textbook covariance, diagnostics) from ``(J_b, r_b)`` blocks:
+    the Jacobian and residuals of each (experiment, output) series."""
+    J = np.vstack([b[0] for b in blocks])
+    r = np.concatenate([b[1] for b in blocks])
+    p = J.shape[1]
+    bread = np.linalg.pinv(J.T @ J)
+    dof = max(len(r) - p, 1)
+    plain = bread * float(r @ r) / dof
+    meat = np.zeros((p, p))
+    windows = []
+    for Jb, rb in blocks:
+        scores = Jb * rb[:, None]
+        window = max(autocorrelation_time(scores[:, j])[1] for j in range(p))
+        windows.append(window)
+        meat += scores.T @ scores
+        for lag in range(1, min(window, len(rb) - 1) + 1):
+            gamma = scores[lag:].T @ scores[:-lag]
+            meat += (1.0 - lag / (window + 1.0)) * (gamma + gamma.T)
+    covariance = bread @ meat @ bread
+    return covariance, plain, {"windows": windows}
+
+
+# -- the fit --------------------------------------------------------------------------------
+def stages(spec: IdentifySpec) -> list[float | None]:
+    """Horizons in seconds, then None (the whole windows): the spec's, else a sixteenth of the
+    longest window, doubled until it reaches that window (five stages)."""
+    longest = max(float(e.t[-1] - e.t[0]) for e in spec.experiments)
+    if spec.horizon is not None:
+        horizons = list(spec.horizon)
+    else:
+        horizons = [longest / 16.0 * 2 ** k for k in range(4)]
+    return [h for h in horizons if h < longest] + [None]
+
+
+@dataclass
+class FitResult:
+    spec: IdentifySpec
+    target: Target
+    items: list
+    start: dict
+    values: dict
+    covariance: np.ndarray
+    plain: np.ndarray
+    windows: list
+    experiments: dict              # name -> {output: comparison} at the fit
+    validation: dict
+    before: dict                   # name -> {output: comparison} at the start values
+    simulated: dict                # name -> {"start": outputs, "fit": outputs}
+    stages: list
+    simulations: int
+    seconds: float
+    cost: float
+    message: str
+
+    def document(self) -> dict:
+        """fit.json: every value with its interval, the correlations, the residuals."""
+        sd = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+        sd_plain = np.sqrt(np.maximum(np.diag(self.plain), 0.0))
+        scales = np.array([u.scale for u in self.items])
+        parameters = {}
+        for k, u in enumerate(self.items):
+            value, err = self.values[u.name], float(sd[k] * scales[k])
+            lo, hi = u.bounds
+            at_bound = bool(np.isclose(value, lo, rtol=1e-9, atol=1e-12 * u.scale)
+                            or np.isclose(value, hi, rtol=1e-9, atol=1e-12 * u.scale))
+            parameters[u.name] = {
+                "value": value, "start": self.start[u.name], "stderr": err,
+                "stderr_plain": float(sd_plain[k] * scales[k]),
+                "interval": [value - Z95 * err, value + Z95 * err], "bounds": [lo, hi],
+                "at_bound": at_bound}
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = self.covariance / np.outer(sd, sd)
+        corr = np.where(np.isfinite(corr), corr, 0.0)
+        names = [u.name for u in self.items]
+        pairs = [[names[i], names[j], float(corr[i, j])] for i in range(len(names))
+                 for j in range(i + 1, len(names)) if abs(corr[i, j]) > NOT_SEPARABLE]
+        return {"name": self.spec.name, "plant": self.target.label, "fmu_sha256": _sha(self.target.fmu),
+                "parameters": parameters, "interval_method": _INTERVALS,
+                "correlation": {"names": names, "matrix": corr.tolist()},
+                "not_separable": pairs,
+                "experiments": self.experiments, "validation": self.validation,
+                "at_start": self.before,
+                "data": {e.name: {"file": e.data.name, "sha256": e.sha256, "window": [float(e.t[0]), float(e.t[-1])],
+                                  "samples": e.samples}
+                         for e in self.spec.experiments + self.spec.validation},
+                "stages": self.stages, "simulations": self.simulations,
+                "seconds": self.seconds, "cost": self.cost, "message": self.message}
+
+
+def _sha(path) -> str:
+    import hashlib
+    from pathlib import Path
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | None = None,
+        progress: Callable[[str, int, float], None] = lambda stage, n, cost: None,
+        log: Callable[[str], None] = lambda line: None) -> FitResult:
+    """Fit the spec's free parameters on ``target``; see the module docstring."""
+    from scipy.optimize import least_squares
+
+    started = time.perf_counter()
+    check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free))
+    plant_values = _plant_values(target, [p.name for p in spec.free])
+    items = unknowns(spec, plant_values)
+    everything = list(spec.experiments) + list(spec.validation)
+    runner = Runner(target, everything, workers, dask)
+    x = np.array([u.start / u.scale for u in items])
+    lower = np.array([u.bounds[0] / u.scale for u in items])
+    upper = np.array([u.bounds[1] / u.scale for u in items])
+    plan, record, message = stages(spec), [], ""
+    try:
+        start_outputs = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None) \
+            .outputs_at(x, everything)
+        failed = [f"{e.path}: {why}" for e, (_, why) in zip(everything, start_outputs) if why]
+        if failed:
+            raise ConfigError([f"at the start values the simulation fails: {line}" for line in failed])
+        for k, horizon in enumerate(plan):
+            label = f"stage {k + 1}/{len(plan)} ({'whole windows' if horizon is None else f'first {horizon:g} s'})"
+            problem = Problem(runner, spec.experiments, items, horizon, spec.max_simulations,
+                              lambda n, cost, label=label: progress(label, n, cost))
+            before = runner.count
+            try:
+                result = least_squares(problem.fun, x, jac=problem.jac, bounds=(lower, upper),
+                                       x_scale="jac", method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10)
+                x, message = result.x, str(result.message)
+                cost = float(result.cost)
+            except BudgetSpent:
+                message = f"stopped at max_simulations ({spec.max_simulations}) in {label}"
+                x = _best(problem)
+                cost = problem.best_cost
+            record.append({"horizon": horizon, "cost": cost, "simulations": runner.count - before})
+            log(f"  {label}: cost {cost:.6g} after {runner.count - before} simulations")
+            if message.startswith("stopped"):
+                break
+        final = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
+        J = final.jac(x)
+        r = final.fun(x)
+        outputs = final.outputs_at(x, everything)
+    finally:
+        simulations = runner.count
+        runner.close()
+    blocks, row = [], 0
+    for experiment in spec.experiments:
+        for _ in experiment.outputs:
+            blocks.append((J[row:row + experiment.samples], r[row:row + experiment.samples]))
+            row += experiment.samples
+    covariance, plain, diagnostics = sandwich(blocks)
+    values = final.values(x)
+    from furuta_cosim.identify.replay import compare
+
+    scored, held, before, simulated = {}, {}, {}, {}
+    starts = {u.name: u.start for u in items}
+    for experiment, (fitted, why), (first, _) in zip(everything, outputs, start_outputs):
+        first = experiment.corrected(first, starts)
+        before[experiment.name] = compare(experiment, first)
+        if fitted is None:
+            raise ConfigError([f"{experiment.path}: the simulation fails at the fitted values: {why}"])
+        fitted = experiment.corrected(fitted, values)
+        (scored if experiment in spec.experiments else held)[experiment.name] = compare(experiment, fitted)
+        simulated[experiment.name] = {"start": first, "fit": fitted}
+    return FitResult(spec, target, items, {u.name: u.start for u in items}, values, covariance,
+                     plain, diagnostics["windows"], scored, held, before, simulated, record,
+                     simulations, time.perf_counter() - started, float(0.5 * r @ r), message)
+
+
+def _best(problem: Problem) -> np.ndarray:
+    best = min(problem._cache.items(), key=lambda item: float(item[1] @ item[1]))
+    return np.frombuffer(best[0], dtype=float).copy()
+
+
+def _plant_values(target: Target, names: Sequence[str]) -> dict[str, float]:
+    """The target's own values of ``names``: the plant file's, else the FMU's start values."""
+    from furuta_cosim.fmu.session import model_description
+
+    found = {}
+    variables = {v.name: v for v in model_description(target.fmu).modelVariables}
+    for name in names:
+        if name in target.fixed:
+            found[name] = float(target.fixed[name])
+        elif name in variables and variables[name].start is not None:
+            try:
+                found[name] = float(variables[name].start)
+            except (TypeError, ValueError):
+                pass
+    return found
+
+
+def with_values(result: FitResult) -> dict[str, float]:
+    """The fitted plant parameters alone (no initial states)."""
+    return {k: v for k, v in result.values.items() if "." not in k}
+
+
+

@@ -1,0 +1,68 @@
+"""Figures of a plant against a measured log: overlays of measured and simulated outputs, and
+their residuals, one row per output, as PNG and SVG."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from furuta_cosim.report.figures import _save, _thin, plt
+
+# angles are drawn in degrees: what a person reads off an encoder
+_DEGREES = {"theta0", "theta1", "dtheta0", "dtheta1"}
+
+
+def _shown(name: str, y: np.ndarray) -> tuple[np.ndarray, str]:
+    if name in _DEGREES:
+        return np.degrees(y), "deg" if not name.startswith("d") else "deg/s"
+    return y, {"i": "A"}.get(name, "")
+
+
+def plot_overlay(t: np.ndarray, measured: Mapping[str, np.ndarray],
+                 simulated: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
+                 title: str = "") -> list[Path]:
+    """Measured outputs (points) and each simulated set (lines, by label) over time."""
+    names = list(measured)
+    figure, axes = plt.subplots(len(names), 1, figsize=(9, 2.6 * len(names) + 0.6), sharex=True,
+                                squeeze=False)
+    for axis, name in zip(axes[:, 0], names):
+        y, unit = _shown(name, measured[name])
+        axis.plot(*_thin(t, y), ".", ms=1.5, color="0.35", label="measured")
+        for label, outputs in simulated.items():
+            axis.plot(*_thin(t, _shown(name, outputs[name])[0]), lw=1.0, label=label)
+        axis.set_ylabel(f"{name} [{unit}]" if unit else name)
+        axis.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right", fontsize="small")
+    axes[-1, 0].set_xlabel("t [s]")
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    return _save(figure, path, dpi=110)
+
+
+def plot_residuals(t: np.ndarray, measured: Mapping[str, np.ndarray],
+                   simulated: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
+                   title: str = "", quantum: Mapping[str, float] | None = None) -> list[Path]:
+    """Simulated minus measured per output, with the encoder's +-quantum/2 band where known."""
+    names = list(measured)
+    figure, axes = plt.subplots(len(names), 1, figsize=(9, 2.3 * len(names) + 0.6), sharex=True,
+                                squeeze=False)
+    for axis, name in zip(axes[:, 0], names):
+        for label, outputs in simulated.items():
+            error, unit = _shown(name, outputs[name] - measured[name])
+            axis.plot(*_thin(t, error), lw=0.7, label=label)
+        step = (quantum or {}).get(name)
+        if step:
+            half = _shown(name, np.array([step / 2]))[0][0]
+            axis.axhspan(-half, half, color="0.85", zorder=0, label="+-quantum/2")
+        axis.axhline(0.0, color="0.5", lw=0.6)
+        axis.set_ylabel(f"{name} error [{unit}]" if unit else f"{name} error")
+        axis.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right", fontsize="small")
+    axes[-1, 0].set_xlabel("t [s]")
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    return _save(figure, path, dpi=110)

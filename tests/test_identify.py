@@ -1,0 +1,142 @@
+"""identify: parameters recovered from synthetic logs within their intervals; the shipped QUBE
+fit reaches its targets; the run directory is one that every command takes."""
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furuta_cosim.identify.fit import autocorrelation_time, fit, sandwich
+from furuta_cosim.identify.replay import target_for
+from furuta_cosim.identify.spec import load_identify_spec
+
+from conftest import run_cli
+
+ROOT = Path(__file__).resolve().parent.parent
+QUANTUM = 2 * math.pi / 2048
+TRUE = {"R_a": 7.9, "M_f": 0.040, "I_a": 1.2e-4, "C0": 6.0e-4}
+
+
+def _synthetic(folder: Path, seed: int = 0) -> Path:
+    """A 3 s PRBS voltage on the QUBE plant with known parameters, logged as a 2048-count
+    encoder and a current sensor with 4 mA of noise."""
+    rng = np.random.default_rng(seed)
+    h, n = 0.002, 1501
+    t = np.arange(n) * h
+    V = np.repeat(rng.choice([-3.0, 3.0], size=n // 25 + 1), 25)[:n]
+    target = target_for(plant="qube-servo-3")
+    from furuta_cosim.fmu.session import PlantSession
+
+    with PlantSession.open(target.fmu) as session:
+        session.reset(parameters={**TRUE, "theta1_start": math.pi})  # hanging, as the log says
+        session.set_io(inputs=["V"], outputs=["theta0", "i"])
+        rows = [session.get(["theta0", "i"])] + [session.step([v], h) for v in V[:-1]]
+    y = np.array(rows)
+    theta = np.round(y[:, 0] / QUANTUM) * QUANTUM
+    current = y[:, 1] + rng.normal(0.0, 0.004, n)
+    (folder / "prbs.csv").write_text("t,V,theta,I\n" + "".join(
+        f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(t.tolist(), V.tolist(), theta.tolist(), current.tolist())))
+    (folder / "prbs.yaml").write_text(
+        "data: prbs.csv\ncolumns: [t, V, theta, I]\ntime: t\ninputs: {V: {column: V}}\n"
+        f"outputs:\n  theta0: {{column: theta, quantum: {QUANTUM!r}}}\n  i: {{column: I, noise: 0.004}}\n"
+        "start: {theta0: 0.0, dtheta0: 0.0, theta1: 3.141592653589793, dtheta1: 0.0, i: 0.0}\n")
+    spec = folder / "spec.yaml"
+    spec.write_text("name: synthetic\nplant: qube-servo-3\nexperiments: [prbs.yaml]\nfree:\n"
+                    "  R_a: {start: 6.0, bounds: [1.0, 30.0]}\n  M_f: {start: 0.05, bounds: [0.005, 0.2]}\n"
+                    "  I_a: {start: 2.0e-4, bounds: [1.0e-6, 1.0e-2]}\n  C0: {start: 2.0e-4, bounds: [0.0, 1.0e-2]}\n")
+    return spec
+
+
+@pytest.mark.slow
+def test_parameters_are_recovered_within_their_intervals(tmp_path):
+    spec = load_identify_spec(_synthetic(tmp_path))
+    document = fit(spec, target_for(plant=spec.plant)).document()
+    for name, true in TRUE.items():
+        p = document["parameters"][name]
+        lo, hi = p["interval"]
+        assert lo <= true <= hi, (name, true, p)
+        # a PRBS of 3 V excites the motor well: every parameter within 1 %
+        assert p["value"] == pytest.approx(true, rel=0.01), (name, p)
+    assert document["experiments"]["prbs"]["theta0"]["rms"] < QUANTUM
+    assert document["experiments"]["prbs"]["i"]["rms"] == pytest.approx(0.004, rel=0.1)
+
+
+def test_the_sandwich_widens_intervals_for_correlated_residuals():
+    rng = np.random.default_rng(1)
+    n = 4000
+    J = np.column_stack([np.ones(n), np.linspace(-1, 1, n)])
+    white = rng.normal(size=n)
+    # an AR(1) series with coefficient 0.95: its integrated autocorrelation time is 39
+    red = np.zeros(n)
+    for k in range(1, n):
+        red[k] = 0.95 * red[k - 1] + white[k]
+    tau, window = autocorrelation_time(red)
+    assert tau == pytest.approx(39.0, rel=0.35) and window > 0
+    hac, plain, _ = sandwich([(J, red)])
+    assert math.sqrt(hac[0, 0] / plain[0, 0]) == pytest.approx(math.sqrt(39.0), rel=0.4)
+    hac, plain, _ = sandwich([(J, white)])
+    assert math.sqrt(hac[0, 0] / plain[0, 0]) == pytest.approx(1.0, abs=0.25)
+
+
+@pytest.fixture(scope="module")
+def shipped(tmp_path_factory):
+    out = tmp_path_factory.mktemp("identify") / "qube"
+    from furuta_cosim.identify.run import identify
+
+    return out, identify("qube-servo-3", out, workers=2)
+
+
+@pytest.mark.slow
+def test_the_shipped_qube_fit_reaches_its_targets(shipped):
+    out, document = shipped
+    swing = document["experiments"]["free-swing"]["theta1"]
+    assert math.degrees(swing["rms"]) <= 0.15
+    assert abs(swing["period"]["error"]) <= 0.001
+    motor = document["experiments"]["motor-7V"]
+    assert motor["theta0"]["rms"] <= 0.005 and motor["i"]["rms"] <= 0.01
+    assert sorted(p.name for p in out.iterdir()) == document["files"]
+    saved = json.loads((out / "fit.json").read_text())
+    assert saved["parameters"]["Tc1"]["value"] == document["parameters"]["Tc1"]["value"]
+    # the correlated motor parameters are named
+    assert any({"M_f", "I_a"} == {a, b} for a, b, _ in saved["not_separable"])
+
+
+@pytest.mark.slow
+def test_the_fitted_plant_replays_to_what_the_fit_reports(shipped, capsys, tmp_path):
+    out, document = shipped
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(out, moved)  # the folder travels: extends names the shipped plant
+    rig = ROOT / "scenarios" / "rigs" / "qube-servo-3"
+    code, text, err = run_cli(capsys, "replay", str(rig / "motor-7V.yaml"), "--plant",
+                              str(moved / "plant.yaml"), "--json")
+    assert code == 0, err
+    replayed = json.loads(text)["experiments"]["motor-7V"]["outputs"]
+    # without the fitted sensor bias the current differs by the bias alone
+    assert replayed["theta0"]["rms"] == pytest.approx(document["experiments"]["motor-7V"]["theta0"]["rms"],
+                                                      rel=1e-9)
+    code, text, err = run_cli(capsys, "design", "lqr", "--model", f"derived:{moved / 'plant.yaml'}", "--json")
+    assert code == 0, err and json.loads(text)["stable"]
+
+
+@pytest.mark.slow
+def test_the_same_spec_gives_the_same_fit_on_one_worker_or_two(shipped, tmp_path):
+    from furuta_cosim.identify.run import identify
+
+    _, document = shipped
+    again = identify("qube-servo-3", tmp_path / "again", workers=1)
+    assert again["parameters"] == document["parameters"]
+    assert again["simulations"] == document["simulations"]
+
+
+def test_identify_cli_refuses_a_spec_with_bad_keys(tmp_path, capsys):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("plant: qube-servo-3\nexperiments: [nowhere.yaml]\nfree:\n  R_a: {bounds: [30, 1]}\n"
+                    "  zeta: {start: 1}\n")
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "out"))
+    assert code == 2 and out == "" and not (tmp_path / "out").exists()
+    assert "spec.yaml: free.R_a.bounds: expected [lo, hi] with lo < hi" in err
+    assert "spec.yaml: free.zeta.bounds: missing" in err
+    assert "experiments[0]: " in err and "nowhere.yaml: file not found" in err
