@@ -131,6 +131,8 @@ def cmd_analyze(args) -> int:
         raise ConfigError(["--mapping: maps a plant FMU given with --model PLANT.fmu"])
     found = analyze_file(args.controller, _model_with_mapping(args.model, args.mapping) if args.model else None)
     cfile, model, analysis, c = found.cfile, found.model, found.analysis, found.cfile.controller
+    if model.provenance.get("note"):
+        print(f"note: {model.provenance['note']}", file=sys.stderr)
     if args.json:
         print(dumps(analysis.as_dict()))
     else:
@@ -367,8 +369,7 @@ def cmd_replay(args) -> int:
     from furuta_cosim.identify.run import replay
 
     target = target_for(plant=None if args.fmu else args.plant, fmu=args.fmu, mapping=args.mapping)
-    document = replay(args.experiments, target, output=args.output,
-                      log=lambda line: print(line, file=sys.stderr))
+    document = replay(args.experiments, target, output=args.output)
     if args.json:
         print(dumps(document))
         return 0

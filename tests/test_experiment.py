@@ -128,3 +128,23 @@ def test_names_the_plant_lacks_are_refused_before_any_simulation(tmp_path):
     assert "e.yaml: inputs.U: qube-servo-3 has no input U" in text
     assert "e.yaml: outputs.phi: qube-servo-3 has no variable phi" in text
     assert "e.yaml: parameters.mass: not a parameter of qube-servo-3" in text
+
+
+def test_the_readme_examples_are_files_that_load(tmp_path):
+    import re
+    import shutil
+
+    from furuta_cosim.identify.spec import load_identify_spec
+
+    text = (ROOT / "README.md").read_text()
+    section = text.split("### Your own rig", 1)[1].split("\n### ", 1)[0]
+    experiment, spec = re.findall(r"```yaml\n(.*?)```", section, re.S)
+    rigs = tmp_path / "rigs" / "qube-servo-3"
+    shutil.copytree(RIG, rigs)
+    (rigs / "motor-7V.yaml").write_text(experiment)
+    e = load_experiment(rigs / "motor-7V.yaml")
+    assert e.outputs["i"].bias is not None and e.samples == 131
+    (tmp_path / "identify").mkdir()
+    (tmp_path / "identify" / "mine.yaml").write_text(spec)
+    loaded = load_identify_spec(tmp_path / "identify" / "mine.yaml")
+    assert [p.name for p in loaded.free] == ["I_p", "R_a"] and loaded.horizon == (2.0, 4.0)

@@ -88,3 +88,22 @@ def test_linear_models_leave_coulomb_friction_out_and_say_so(capsys):
     import json
 
     assert json.loads(out)["notes"] == [model.provenance["note"]]
+
+
+def test_fmi3_builds_carry_the_rig_terms():
+    from pathlib import Path
+
+    from furuta_cosim.identify.experiment import load_experiment
+    from furuta_cosim.identify.replay import open_session, simulate, target_for
+
+    experiment = load_experiment(Path(__file__).resolve().parent.parent / "scenarios" / "rigs"
+                                 / "qube-servo-3" / "motor-7V.yaml")
+    results = []
+    for version in ("2.0", "3.0"):
+        target = target_for(plant="qube-servo-3", fmi_version=version)
+        with open_session(target) as session:
+            results.append(simulate(session, target, experiment, {"K_stop": 5.0, "theta0_max": 1.0}))
+    two, three = results
+    assert two["theta0"].max() < 1.1  # the stop held: the terms are in the build
+    for name in ("theta0", "i"):
+        np.testing.assert_allclose(three[name], two[name], rtol=0, atol=1e-12)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import re
 from pathlib import Path
 
 from furuta_cosim.cosim.evaluation import evaluate
@@ -83,6 +84,39 @@ def start_pool(workers: int, setup=None, setup_args: tuple = ()):
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+
+_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}")
+
+
+def check_address(address: str) -> str:
+    """``local`` or a Dask scheduler address (``tcp://host:8786``, ``host:8786``)."""
+    from furuta_cosim.errors import ConfigError
+
+    if address != "local" and not _ADDRESS.fullmatch(str(address)):
+        raise ConfigError([f"--dask: expected 'local' or a scheduler address such as "
+                           f"tcp://host:8786, got {address!r}"])
+    return address
+
+
+def connect_dask(address: str, workers: int):
+    """(client, cluster or None): a LocalCluster of ``workers`` one-thread processes for
+    ``local``, else a client of the scheduler at ``address``; one line when neither can be had."""
+    from furuta_cosim.errors import ConfigError
+
+    check_address(address)
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
+    if address == "local":
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, env=SINGLE_THREAD)
+        return Client(cluster), cluster
+    try:
+        return Client(address, timeout="30s"), None
+    except (OSError, TimeoutError) as error:
+        raise ConfigError([f"--dask {address}: no Dask scheduler answers there ({error})"]) from None
 
 
 def session_for(prepared: Prepared):

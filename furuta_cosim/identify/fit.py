@@ -31,7 +31,7 @@ import numpy as np
 
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.identify.experiment import Experiment
-from furuta_cosim.identify.replay import SimulationFailed, Target, check_names, open_session, simulate
+from furuta_cosim.identify.replay import SimulationFailed, Target, check_names, simulate
 from furuta_cosim.identify.spec import IdentifySpec
 
 Z95 = 1.959963984540054
@@ -109,23 +109,9 @@ class Runner:
                       else "in this process")
 
     def _start_dask(self, target, experiments, address, workers) -> None:
-        from furuta_cosim.cosim.worker import SINGLE_THREAD
-        from furuta_cosim.tuning.executors import check_address
+        from furuta_cosim.cosim.worker import connect_dask
 
-        try:
-            from distributed import Client, LocalCluster
-        except ImportError:
-            raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
-        check_address(address)
-        if address == "local":
-            self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None, env=SINGLE_THREAD)
-            self._client = Client(self._cluster)
-        else:
-            try:
-                self._client = Client(address, timeout="30s")
-            except (OSError, TimeoutError) as error:
-                raise ConfigError([f"--dask {address}: no Dask scheduler answers there ({error})"]) from None
+        self._client, self._cluster = connect_dask(address, workers)
         context = (target, list(experiments), f"{id(self)}-{time.time_ns()}")
         [self._context] = self._client.scatter([context], broadcast=True)
 
@@ -133,7 +119,13 @@ class Runner:
         self.count += len(tasks)
         if self._client is not None:
             futures = [self._client.submit(_run_with, self._context, task, pure=False) for task in tasks]
-            return self._client.gather(futures)
+            try:
+                return self._client.gather(futures)
+            except Exception as error:  # noqa: BLE001 (a lost scheduler or worker: the fit cannot go on)
+                from furuta_cosim.errors import RunStopped
+
+                raise RunStopped(f"the Dask cluster failed during the fit ({type(error).__name__}: "
+                                 f"{error}); nothing was written: run identify again") from None
         if self._pool is not None:
             return list(self._pool.map(run_task, tasks))
         return [run_task(task) for task in tasks]

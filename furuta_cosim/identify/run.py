@@ -23,8 +23,7 @@ from furuta_cosim.identify.replay import (SimulationFailed, Target, check_names,
 from furuta_cosim.identify.spec import load_identify_spec
 
 
-def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None,
-           log: Callable[[str], None] = lambda line: None) -> dict:
+def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None) -> dict:
     """Each experiment's logged inputs run open loop on ``target``: per output its RMS error
     (SI units) and, where it oscillates, its period; with ``output``, an overlay and a residual
     figure per experiment (PNG and SVG) and ``replay.json`` there."""
@@ -38,7 +37,6 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                 simulated = simulate(session, target, experiment)
             except SimulationFailed as error:
                 document["experiments"][experiment.name] = {"failure": str(error)}
-                log(f"  {experiment.name}: {error}")
                 continue
             entry = {"file": str(experiment.path), "samples": experiment.samples,
                      "outputs": compare(experiment, simulated)}
@@ -140,6 +138,10 @@ def report_page(document: dict, out: Path) -> str:
             f"Intervals: {document['interval_method']}. The plain column is the textbook "
             "s^2 (J^T J)^-1, which assumes independent residuals.\n\n## Correlated pairs\n\n" + pairs
             + "\n## Residuals (SI units: rad, A)\n\n" + "\n".join(fits) + "\n")
+    data = ["| experiment | file | samples | window [s] | sha256 |", "|---|---|---|---|---|"]
+    data += [f"| {name} | {d['file']} | {d['samples']} | {d['window'][0]:g} to {d['window'][1]:g} | {d['sha256'][:16]} |"
+             for name, d in document["data"].items()]
+    text += "\n## Data\n\n" + "\n".join(data) + f"\n\nPlant FMU sha256 {document['fmu_sha256'][:16]}.\n"
     body = markdown_to_html(text) + "".join(
         figure(out / Path(name).with_suffix(".svg"), Path(name).stem) for name in document["figures"])
     return page(f"identify {document['name']}", body)

@@ -20,21 +20,12 @@ def _shown(name: str, y: np.ndarray) -> tuple[np.ndarray, str]:
     return y, {"i": "A"}.get(name, "")
 
 
-def plot_overlay(t: np.ndarray, measured: Mapping[str, np.ndarray],
-                 simulated: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
-                 title: str = "") -> list[Path]:
-    """Measured outputs (points) and each simulated set (lines, by label) over time."""
-    names = list(measured)
-    figure, axes = plt.subplots(len(names), 1, figsize=(9, 2.6 * len(names) + 0.6), sharex=True,
-                                squeeze=False)
-    for axis, name in zip(axes[:, 0], names):
-        y, unit = _shown(name, measured[name])
-        axis.plot(*_thin(t, y), ".", ms=1.5, color="0.35", label="measured")
-        for label, outputs in simulated.items():
-            axis.plot(*_thin(t, _shown(name, outputs[name])[0]), lw=1.0, label=label)
-        axis.set_ylabel(f"{name} [{unit}]" if unit else name)
-        axis.grid(alpha=0.3)
-    axes[0, 0].legend(loc="upper right", fontsize="small")
+def _rows(count: int, height: float):
+    return plt.subplots(count, 1, figsize=(9, height * count + 0.6), sharex=True, squeeze=False)
+
+
+def _finish(figure, axes, path, title: str) -> list[Path]:
+    axes[0, 0].legend(loc="best", fontsize="small")
     axes[-1, 0].set_xlabel("t [s]")
     if title:
         figure.suptitle(title)
@@ -42,13 +33,28 @@ def plot_overlay(t: np.ndarray, measured: Mapping[str, np.ndarray],
     return _save(figure, path, dpi=110)
 
 
+def plot_overlay(t: np.ndarray, measured: Mapping[str, np.ndarray],
+                 simulated: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
+                 title: str = "") -> list[Path]:
+    """Measured outputs (points) and each simulated set (lines, by label) over time."""
+    names = list(measured)
+    figure, axes = _rows(len(names), 2.6)
+    for axis, name in zip(axes[:, 0], names):
+        y, unit = _shown(name, measured[name])
+        axis.plot(*_thin(t, y), ".", ms=1.5, color="0.35", label="measured")
+        for label, outputs in simulated.items():
+            axis.plot(*_thin(t, _shown(name, outputs[name])[0]), lw=1.0, label=label)
+        axis.set_ylabel(f"{name} [{unit}]" if unit else name)
+        axis.grid(alpha=0.3)
+    return _finish(figure, axes, path, title)
+
+
 def plot_residuals(t: np.ndarray, measured: Mapping[str, np.ndarray],
                    simulated: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
                    title: str = "", quantum: Mapping[str, float] | None = None) -> list[Path]:
     """Simulated minus measured per output, with the encoder's +-quantum/2 band where known."""
     names = list(measured)
-    figure, axes = plt.subplots(len(names), 1, figsize=(9, 2.3 * len(names) + 0.6), sharex=True,
-                                squeeze=False)
+    figure, axes = _rows(len(names), 2.3)
     for axis, name in zip(axes[:, 0], names):
         for label, outputs in simulated.items():
             error, unit = _shown(name, outputs[name] - measured[name])
@@ -60,9 +66,4 @@ def plot_residuals(t: np.ndarray, measured: Mapping[str, np.ndarray],
         axis.axhline(0.0, color="0.5", lw=0.6)
         axis.set_ylabel(f"{name} error [{unit}]" if unit else f"{name} error")
         axis.grid(alpha=0.3)
-    axes[0, 0].legend(loc="upper right", fontsize="small")
-    axes[-1, 0].set_xlabel("t [s]")
-    if title:
-        figure.suptitle(title)
-    figure.tight_layout()
-    return _save(figure, path, dpi=110)
+    return _finish(figure, axes, path, title)

@@ -10,25 +10,13 @@ goes on (a dead local worker pool is started again).
 from __future__ import annotations
 
 import os
-import re
 import traceback
 
-from furuta_cosim.cosim.worker import SINGLE_THREAD, start_pool
+from furuta_cosim.cosim.worker import check_address, connect_dask, start_pool
 from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.spec import TuningSpec
 
 _EVALUATORS: dict[str, Evaluator] = {}
-_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}")
-
-
-def check_address(address: str) -> str:
-    """``local`` or a Dask scheduler address (``tcp://host:8786``, ``host:8786``)."""
-    from furuta_cosim.errors import ConfigError
-
-    if address != "local" and not _ADDRESS.fullmatch(str(address)):
-        raise ConfigError([f"--dask: expected 'local' or a scheduler address such as "
-                           f"tcp://host:8786, got {address!r}"])
-    return address
 
 
 def dask_wait() -> float:
@@ -155,26 +143,9 @@ class Dask(_Executor):
     name = "dask"
 
     def __init__(self, spec: TuningSpec, address: str, workers: int):
-        try:
-            from distributed import Client, LocalCluster
-        except ImportError:
-            from furuta_cosim.errors import ConfigError
-
-            raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
-        from furuta_cosim.errors import ConfigError
-
         self.spec, self.address = spec, check_address(address)
         self.where = f"on Dask ({address})"
-        if address == "local":
-            self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None, env=SINGLE_THREAD)
-            self._client = Client(self._cluster)
-        else:
-            self._cluster = None
-            try:
-                self._client = Client(address, timeout="30s")
-            except (OSError, TimeoutError) as error:
-                raise ConfigError([f"--dask {address}: no Dask scheduler answers there ({error})"]) from None
+        self._client, self._cluster = connect_dask(address, workers)
 
     def submit(self, x):
         return self._client.submit(evaluate_in_worker, self.spec, list(x), pure=False)
