@@ -140,3 +140,21 @@ def test_identify_cli_refuses_a_spec_with_bad_keys(tmp_path, capsys):
     assert "spec.yaml: free.R_a.bounds: expected [lo, hi] with lo < hi" in err
     assert "spec.yaml: free.zeta.bounds: missing" in err
     assert "experiments[0]: " in err and "nowhere.yaml: file not found" in err
+
+
+@pytest.mark.slow
+def test_validation_experiments_are_scored_and_never_fitted(tmp_path):
+    spec_file = _synthetic(tmp_path)
+    held = tmp_path / "held"
+    held.mkdir()
+    _synthetic(held, seed=1)  # another PRBS of the same plant
+    (tmp_path / "prbs-2.yaml").write_text((held / "prbs.yaml").read_text().replace("prbs.csv", "held/prbs.csv")
+                                          .replace("data:", "name: prbs-2\ndata:"))
+    text = spec_file.read_text().replace("experiments: [prbs.yaml]", "experiments: [prbs.yaml]\nvalidation: [prbs-2.yaml]")
+    (tmp_path / "with-validation.yaml").write_text(text)
+    plain = fit(load_identify_spec(spec_file), target_for(plant="qube-servo-3")).document()
+    checked = fit(load_identify_spec(tmp_path / "with-validation.yaml"), target_for(plant="qube-servo-3")).document()
+    assert checked["parameters"] == plain["parameters"]  # the held-out log moved nothing
+    scored = checked["validation"]["prbs-2"]
+    assert scored["theta0"]["rms"] < QUANTUM and scored["i"]["rms"] == pytest.approx(0.004, rel=0.1)
+    assert "prbs-2" not in checked["experiments"] and plain["validation"] == {}
