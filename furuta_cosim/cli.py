@@ -90,7 +90,7 @@ def cmd_design_lqr(args) -> int:
     from furuta_cosim.design.linear import time_text
     from furuta_cosim.lqr_file import design_lqr_file
 
-    design = design_lqr_file(_model_with_mapping(args.model, args.mapping), Q=args.Q, R=args.R, period=args.period,
+    design = design_lqr_file(_model_with_mapping(_design_model(args), args.mapping), Q=args.Q, R=args.R, period=args.period,
                              continuous=args.continuous, name=args.name, track=args.track,
                              description=args.description, output=args.output)
     if design.path:
@@ -108,6 +108,16 @@ def cmd_design_lqr(args) -> int:
         print("closed-loop eigenvalues: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
         print(f"prefilter for {cfile.tracked_output}: F = {cfile.F:.6g}")
     return 0
+
+
+def _design_model(args, default: str | None = "paper-printed") -> str | None:
+    """--model, or the linearization of --plant (derived:PLANT), or ``default``."""
+    if args.plant and args.model:
+        raise ConfigError(["--plant: designs on the linearization of that plant; give it or "
+                           "--model, not both"])
+    if args.plant:
+        return f"derived:{args.plant}"
+    return args.model or default
 
 
 def _complex(z) -> str:
@@ -129,7 +139,8 @@ def cmd_analyze(args) -> int:
 
     if args.mapping and not args.model:
         raise ConfigError(["--mapping: maps a plant FMU given with --model PLANT.fmu"])
-    found = analyze_file(args.controller, _model_with_mapping(args.model, args.mapping) if args.model else None)
+    model = _design_model(args, None)
+    found = analyze_file(args.controller, _model_with_mapping(model, args.mapping) if model else None)
     cfile, model, analysis, c = found.cfile, found.model, found.analysis, found.cfile.controller
     if model.provenance.get("note"):
         print(f"note: {model.provenance['note']}", file=sys.stderr)
@@ -158,6 +169,12 @@ def cmd_simulate(args) -> int:
     from furuta_cosim.simulation import simulate_scenario
 
     scenario = load_scenario(args.scenario)
+    if args.plant:
+        from furuta_cosim.cosim.master import on_plant
+
+        if args.fmu:
+            raise ConfigError(["--plant: give a plant file or an FMU (--fmu), not both"])
+        scenario = on_plant(scenario, args.plant)
     out = Path(args.output or Path("out") / scenario.name)
     started = time.perf_counter()
     progress = Progress()
@@ -283,7 +300,7 @@ def cmd_regress(args) -> int:
     bar = Progress(delay=0.0, unit="run")
     try:
         report = regress(args.paths, update=args.update, fmu=args.fmu, mapping=args.mapping,
-                         overrides=_overrides(args.params), workers=workers,
+                         overrides=_overrides(args.params), plant=args.plant, workers=workers,
                          baselines=args.baselines, junit=args.junit, output=args.output,
                          progress=lambda done, total: bar("regress", done, total, ""))
     finally:
@@ -304,6 +321,10 @@ def cmd_regress(args) -> int:
         elif report.update and case.differences:
             for line in case.lines():
                 print(f"changed    {line}")
+        if case.status == "n/a":
+            for line in case.lines():
+                print(f"n/a        {line}")
+            continue
         for note in case.notes if case.status != "unfit" else ():
             print(f"note       {case.scenario} / {case.controller}: {note}")
     counts = {}
@@ -478,8 +499,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_build_fmu)
 
     p = commands.add_parser("linearize", help="linearize a plant FMU at its start point")
-    p.add_argument("--params", default="paper-calibrated",
-                   help="parameter set or plant file (default: paper-calibrated)")
+    p.add_argument("--plant", "--params", dest="params", default="paper-calibrated",
+                   help="plant file or name (default: paper-calibrated)")
     p.add_argument("--inputs", nargs="+", help="inputs that make B's columns (default: all)")
     p.add_argument("--fmu", help="any plant FMU with model exchange instead of this project's plant")
     p.add_argument("--mapping", metavar="FILE", help="for --fmu: names its states and control input")
@@ -489,9 +510,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("design", help="design a controller")
     designs = p.add_subparsers(dest="design", required=True, metavar="METHOD")
     q = designs.add_parser("lqr", help="linear-quadratic regulator (discrete at 2 ms by default)")
-    q.add_argument("--model", default="paper-printed",
+    q.add_argument("--model",
                    help="paper-printed (default), derived[:SET], toy, a linear plant file, or a "
                         "plant FMU with model exchange (PLANT.fmu)")
+    q.add_argument("--plant", metavar="PLANT",
+                   help="design on this plant file's linearization (the same as --model derived:PLANT)")
     q.add_argument("--mapping", metavar="FILE",
                    help="for a plant FMU: names its states and control input (as regress --mapping)")
     timing = q.add_mutually_exclusive_group()
@@ -511,6 +534,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("analyze", help="stability, dominant mode and prefilter of a controller")
     p.add_argument("controller", help="controller file or name in scenarios/controllers")
     p.add_argument("--model", help="model (default: the one the file names)")
+    p.add_argument("--plant", metavar="PLANT", help="analyze on this plant file's linearization "
+                                                   "(the same as --model derived:PLANT)")
     p.add_argument("--mapping", metavar="FILE", help="for a plant FMU given with --model: its mapping")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_analyze)
@@ -521,6 +546,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run this controller file instead of the scenario's (repeatable)")
     p.add_argument("--fmu", help="run on this plant FMU instead of the scenario's plant "
                                  "(mapped by the scenario's plant.mapping)")
+    p.add_argument("--plant", metavar="PLANT", help="run on this plant file or name (of the "
+                                                   "scenario's model) instead of the scenario's")
     p.add_argument("-o", "--output", help="folder for traces, metrics and figures (default out/<scenario>)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="write every N-th sample to the CSV traces (metrics use all)")
@@ -555,8 +582,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu", help="run on this plant FMU instead of the scenarios' plants")
     p.add_argument("--mapping", metavar="FILE",
                    help="plant mapping for --fmu (control_input, states, disturbances, initial)")
+    p.add_argument("--plant", metavar="PLANT",
+                   help="run every scenario of the same model on this plant file or name; the "
+                        "others are listed as not applicable")
     p.add_argument("--params", action="append", metavar="SET",
-                   help="plant parameters on top of the scenarios': a plant file, or NAME=VALUE (repeatable)")
+                   help="plant parameters on top of the scenarios': a plant file, or NAME=VALUE "
+                        "(repeatable); a scenario whose plant lacks one is not applicable")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="also write regress.json and regress.xml there (furuta-cosim report DIR)")

@@ -25,6 +25,11 @@ class PlantUnfit(ConfigError):
     it for that scenario and goes on with the others."""
 
 
+class NotApplicable(ConfigError):
+    """A scenario asked to run on a plant of another model than its own (a toy scenario on a
+    pendulum plant): ``regress`` lists it as not applicable and goes on with the others."""
+
+
 class FmuError(RuntimeError):
     """An FMU that failed to build, load, or reported an error while running."""
 

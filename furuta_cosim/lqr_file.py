@@ -6,6 +6,7 @@ analyzes a controller file on the model it names (:func:`analyze_file`, ``analyz
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -71,8 +72,8 @@ def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
     ``Q`` and ``R`` are weights as on the command line: one value (times the identity), n
     diagonal values or n*n entries (None: python-control's defaults of :func:`lqr`, the paper's
     for the pendulum). The controller is named ``name``, else after the output file, else
-    ``lqr``; the file records the model as it was given (a path made absolute), so that
-    ``analyze`` finds it again. Problems name the flag or file at fault (ConfigError,
+    ``lqr``; the file records the model as it was given, a path relative to the file's own
+    folder (so that the file travels with what it names, and ``analyze`` finds it again). Problems name the flag or file at fault (ConfigError,
     DesignError).
     """
     if not continuous and not (isinstance(period, (int, float)) and period > 0):
@@ -97,25 +98,32 @@ def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
     except DesignError as error:
         raise DesignError(f"--track {tracked}: {error}") from None
     cfile = ControllerFile(controller, controller.period or (0.0 if continuous else period),
-                           _recorded_model(model_name), tracked, F, description,
+                           _recorded_model(model_name, Path(output).parent if output else None),
+                           tracked, F, description,
                            provenance=controller.provenance)
     path = save_controller(cfile, output) if output else None
     return Design(cfile, model, analyze(model, controller), path)
 
 
-def _recorded_model(model_name: str) -> str:
-    """The model as a controller file records it: a name as it is, a file as an absolute path
-    (``derived:variant.yaml`` given from another folder could not be found again)."""
+def _recorded_model(model_name: str, folder: Path | None = None) -> str:
+    """The model as a controller file in ``folder`` records it: a name as it is, a file by its
+    path relative to ``folder`` (absolute without one: ``derived:variant.yaml`` given from
+    another folder could not be found again otherwise)."""
     fmu, hash_, mapping = str(model_name).partition("#")
     if fmu.endswith(".fmu"):
-        return str(Path(fmu).resolve()) + (f"#{Path(mapping).resolve()}" if hash_ else "")
+        return _relative(fmu, folder) + (f"#{_relative(mapping, folder)}" if hash_ else "")
     kind, colon, rest = str(model_name).partition(":")
     if kind == "derived" and colon:
-        return f"derived:{_recorded_model(rest)}"
+        return f"derived:{_recorded_model(rest, folder)}"
     path = Path(model_name)
     if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
-        return str(path.resolve())
+        return _relative(path, folder)
     return str(model_name)
+
+
+def _relative(path: str | Path, folder: Path | None) -> str:
+    resolved = Path(path).resolve()
+    return os.path.relpath(resolved, Path(folder).resolve()) if folder is not None else str(resolved)
 
 
 def _model_source(model_name: str) -> str:

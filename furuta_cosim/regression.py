@@ -26,10 +26,11 @@ import numpy as np
 from furuta_cosim import __version__, paths
 from furuta_cosim.config import Checker, load_yaml
 from furuta_cosim.cosim.evaluation import Compiled, runs, scenario_controllers
-from furuta_cosim.cosim.master import Prepared, prepare
+from furuta_cosim.cosim.master import Prepared, lacks, on_plant, prepare
 from furuta_cosim.cosim.result import RunResult
 from furuta_cosim.documents import dumps, json_safe
-from furuta_cosim.errors import ConfigError, PlantUnfit
+from furuta_cosim.errors import ConfigError, NotApplicable, PlantUnfit
+from furuta_cosim.fmu.plants import load_plant
 from furuta_cosim.files import output_file, output_folder, write_text
 from furuta_cosim.scenario import Scenario, load_mapping, load_scenario
 
@@ -75,7 +76,7 @@ class Case:
     scenario: str
     controller: str
     baseline: Path
-    status: str                    # pass, fail, missing, new, updated, unchanged, unfit
+    status: str                    # pass, fail, missing, new, updated, unchanged, unfit, n/a
     differences: list[Difference] = field(default_factory=list)
     checked: int = 0               # metrics and signals compared
     wall_time: float = 0.0
@@ -88,6 +89,8 @@ class Case:
     def lines(self) -> list[str]:
         if self.status == "unfit":
             return [f"{self.scenario} / {self.controller}: cannot run on this FMU: {note}" for note in self.notes]
+        if self.status == "n/a":
+            return [f"{self.scenario} / {self.controller}: not applicable: {note}" for note in self.notes]
         if self.status == "missing":
             return [f"{self.scenario} / {self.controller}: no baseline at {self.baseline} "
                     "(regress --update makes it)"]
@@ -377,6 +380,7 @@ class Report:
     overrides: dict
     wall_time: float
     versions: dict
+    plant: str | None = None       # --plant: the plant every applicable scenario ran on
 
     @property
     def failed(self) -> list[Case]:
@@ -384,7 +388,7 @@ class Report:
 
     def to_dict(self) -> dict:
         return {"passed": not self.failed, "update": self.update, "fmu": self.fmu,
-                "overrides": self.overrides, "wall_time": self.wall_time, "versions": self.versions,
+                "plant": self.plant, "overrides": self.overrides, "wall_time": self.wall_time, "versions": self.versions,
                 "cases": [c.to_dict() for c in self.cases]}
 
 
@@ -410,15 +414,17 @@ def scenario_files(names: Sequence[str | Path] | None) -> list[Path]:
 
 def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             fmu: str | Path | None = None, mapping: str | Path | None = None,
-            overrides: dict | None = None, workers: int = 1, baselines: Path | None = None,
+            overrides: dict | None = None, plant: str | Path | None = None,
+            workers: int = 1, baselines: Path | None = None,
             junit: str | Path | None = None, output: str | Path | None = None,
             progress: Callable[[int, int], None] | None = None) -> Report:
     """Run every controller of every scenario named and compare each with its baseline
     (``update``: write the baselines instead, reporting what changed).
 
-    ``fmu`` (with ``mapping``, a plant-mapping file, for another tool's FMU) and ``overrides``
-    (FMU parameters) run the same scenarios on another plant; they cannot be combined with
-    ``update``. Bad input of any kind, a corrupt baseline or one made from another version of
+    ``fmu`` (with ``mapping``, a plant-mapping file, for another tool's FMU), ``plant`` (a
+    plant file or name) and ``overrides`` (FMU parameters) run the same scenarios on another
+    plant; they cannot be combined with ``update``. A scenario of another model than ``plant``,
+    or whose plant lacks a parameter of ``overrides``, is listed as not applicable (``n/a``). Bad input of any kind, a corrupt baseline or one made from another version of
     its files among it, is a ConfigError raised before any baseline is written. ``junit``:
     write the report as JUnit XML there; ``output``: a folder for ``regress.json`` and
     ``regress.xml`` (both checked before anything runs).
@@ -435,9 +441,13 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     if baselines is not None and Path(baselines).exists() and not Path(baselines).is_dir():
         raise ConfigError([f"--baselines {baselines}: is a file; name the folder that holds "
                            "<scenario>/<controller>.yaml baselines"])
-    if update and (fmu or overrides or mapping):
+    if update and (fmu or overrides or mapping or plant):
         raise ConfigError(["--update writes the baselines from the scenarios' own plants; "
-                           "leave out --fmu, --mapping and --params"])
+                           "leave out --fmu, --mapping, --plant and --params"])
+    if plant is not None and fmu is not None:
+        raise ConfigError(["--plant: give a plant file or an FMU (--fmu), not both"])
+    if plant is not None:
+        load_plant(plant)  # a bad plant is one error, not one per scenario
     if (fmu or mapping) and not names:
         raise ConfigError(["--fmu: name the scenarios to run on it (the shipped scenarios are for "
                            "several plants)"])
@@ -450,6 +460,19 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     unfit = []  # cases of scenarios the given FMU cannot run
     for path in scenario_files(names):
         scenario = load_scenario(path)
+        try:
+            if plant is not None:
+                scenario = on_plant(scenario, plant)
+            missing = lacks(scenario, overrides or {}) if overrides and fmu is None else []
+            if missing:
+                shown = ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
+                raise NotApplicable([f"{scenario.source}: its plant has no parameter {shown} (--params)"])
+        except NotApplicable as error:
+            for name in scenario.controllers:
+                label = Path(name).stem
+                unfit.append(Case(scenario.name, label, baseline_path(scenario, label, baselines),
+                                  "n/a", notes=list(error.problems)))
+            continue
         if plant_mapping is not None:
             from dataclasses import replace
 
@@ -504,7 +527,8 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
 
     versions = {"furuta-cosim": __version__, "fmpy": fmpy.__version__, "numpy": np.__version__}
     report = Report(cases, update, str(fmu) if fmu else None, dict(overrides or {}),
-                    time.perf_counter() - started, versions)
+                    time.perf_counter() - started, versions,
+                    load_plant(plant).name if plant is not None else None)
     if junit:
         write_junit(report, junit)
     if output:
@@ -568,6 +592,8 @@ def junit_xml(report: Report) -> str:
             failure = ET.SubElement(element, "failure", message=lines[0] if lines else case.status,
                                     type={"fail": "regression", "unfit": "plant-unfit"}.get(case.status, "missing-baseline"))
             failure.text = "\n".join(lines)
+        if case.status == "n/a":
+            ET.SubElement(element, "skipped", message="; ".join(case.notes))
         properties = ET.SubElement(element, "properties")
         ET.SubElement(properties, "property", name="baseline", value=str(case.baseline))
         ET.SubElement(properties, "property", name="checked", value=str(case.checked))

@@ -261,6 +261,42 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     return prepared
 
 
+def on_plant(scenario: Scenario, plant: str | Path) -> Scenario:
+    """The scenario with its plant replaced by ``plant`` (a plant name or file), keeping its
+    own ``plant.overrides``; NotApplicable when the scenario runs another model or an FMU."""
+    from dataclasses import replace
+
+    from furuta_cosim.errors import NotApplicable
+
+    given = load_plant(plant)
+    if scenario.fmu is not None:
+        raise NotApplicable([f"{scenario.source}: runs the FMU {scenario.fmu.name}, not a plant file"])
+    own = _own_plant(scenario)
+    if own.model != given.model or own.linear is not None:
+        # a linear plant is its own model: its states and inputs are its own
+        raise NotApplicable([f"{scenario.source}: runs the {own.name} plant (model {own.model}); "
+                             f"{given.name} is a {given.model} plant"])
+    return replace(scenario, plant=str(given.path.resolve()))
+
+
+def lacks(scenario: Scenario, names) -> list[str]:
+    """Of ``names`` (plant parameters), those the scenario's own plant does not have."""
+    from furuta_cosim.fmu.exporter import declaration
+
+    if scenario.fmu is not None:
+        return []
+    model = declaration(_own_plant(scenario))
+    known = {v.name for v in model.reals if v.causality == "parameter"} | {v.name for v in model.integers}
+    return [name for name in names if name not in known]
+
+
+def _own_plant(scenario: Scenario) -> PlantSet:
+    try:
+        return load_plant(scenario.plant or "furuta", beside=scenario.folder)
+    except ConfigError as error:
+        raise error.within(f"{scenario.source}: plant.model") from None
+
+
 def _plant(scenario: Scenario, fmu: str | Path | None) -> tuple[PlantSet | None, Path]:
     """The plant set (when the scenario names one) and the FMU to run."""
     plant = None

@@ -1,0 +1,68 @@
+"""--plant: every command that runs or designs on the pendulum takes another plant; scenarios
+of another model are not applicable, never an error about a file the user did not write; a
+designed controller names its model relative to itself and travels."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from conftest import run_cli
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_regress_on_another_plant_lists_the_toy_scenarios_as_not_applicable(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "regress", "paper-step", "toy-step", "--plant", "qube-servo-3",
+                             "--json")
+    report = json.loads(out)
+    status = {(c["scenario"], c["controller"]): c["status"] for c in report["cases"]}
+    assert status[("toy-step", "toy-classical")] == "n/a" and status[("toy-step", "toy-generalized")] == "n/a"
+    # the paper's controllers on the QUBE plant: what moves is reported, as regressions
+    assert status[("paper-step", "lqr-paper")] == "fail" and report["plant"] == "qube-servo-3"
+    assert code == 1 and "plant.overrides" not in err
+    notes = [c["notes"][0] for c in report["cases"] if c["status"] == "n/a"]
+    assert all("runs the toy plant (model linear); qube-servo-3 is a furuta plant" in n for n in notes)
+
+
+def test_regress_params_of_a_pendulum_set_skip_the_toy_scenarios(capsys):
+    code, out, err = run_cli(capsys, "regress", "toy-step", "--params", "qube-servo-3")
+    assert code == 0, err  # nothing applicable failed
+    assert "2 n/a" in out and "its plant has no parameter m_p, m_c, I_p and" in out
+    assert "error" not in err
+
+
+def test_regress_on_its_own_plant_passes_as_without(capsys):
+    code, out, err = run_cli(capsys, "regress", "paper-step", "--plant", "paper-calibrated")
+    assert code == 0 and "2 pass" in out, (out, err)
+
+
+def test_simulate_on_another_plant_and_on_the_wrong_model(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "simulate", "paper-step", "--plant", "qube-servo-3",
+                             "--controller", str(ROOT / "scenarios" / "controllers" / "lqr-paper.yaml"),
+                             "-o", str(tmp_path / "q"), "--json")
+    assert json.loads(out)["plant"] == "qube-servo-3"
+    code, out, err = run_cli(capsys, "simulate", "toy-step", "--plant", "qube-servo-3", "-o", str(tmp_path / "t"))
+    assert code == 2 and err.count("\n") == 1 and "runs the toy plant" in err
+    assert not (tmp_path / "t").exists()
+
+
+def test_a_designed_controller_names_its_plant_relative_to_itself_and_travels(capsys, tmp_path):
+    work = tmp_path / "work"
+    (work / "plants").mkdir(parents=True)
+    plant = work / "plants" / "rig.yaml"
+    plant.write_text("model: furuta\nextends: qube-servo-3\nparameters: {R_a: 7.7}\n")
+    code, out, err = run_cli(capsys, "design", "lqr", "--plant", str(plant), "-o",
+                             str(work / "controllers" / "lqr-rig.yaml"), "--json")
+    assert code == 0, err
+    text = (work / "controllers" / "lqr-rig.yaml").read_text()
+    assert "model: derived:../plants/rig.yaml" in text and str(tmp_path) not in text
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(work, moved)
+    shutil.rmtree(work)
+    code, out, err = run_cli(capsys, "analyze", str(moved / "controllers" / "lqr-rig.yaml"), "--json")
+    assert code == 0, err
+    assert json.loads(out)["stable"] is True
+    code, out, err = run_cli(capsys, "design", "lqr", "--plant", "qube-servo-3", "--model", "toy")
+    assert code == 2 and "give it or --model, not both" in err
