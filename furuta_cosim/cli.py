@@ -241,7 +241,7 @@ def cmd_tune(args) -> int:
     from furuta_cosim.tuning.run import summary_text, tune
     from furuta_cosim.tuning.spec import load_spec
 
-    spec = load_spec(args.spec)
+    spec = load_spec(args.spec, plant=args.plant)
     out = Path(args.output or Path("runs") / spec.name)
     started = time.monotonic()
     bar = Progress(delay=0.0, unit="evaluation")
@@ -252,7 +252,7 @@ def cmd_tune(args) -> int:
         bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
     workers = _workers(args)
-    args.resume_with = f"furuta-cosim tune {args.spec} -o {out} --resume"
+    args.resume_with = f"furuta-cosim tune {args.spec} -o {out}" + (f" --plant {args.plant}" if args.plant else "") + " --resume"
     try:
         document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
                         workers=workers, dask=args.dask, resume=args.resume, progress=progress,
@@ -563,6 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; "
                                                "1 evaluates in this process)")
     p.add_argument("--dask", metavar="ADDRESS", help="evaluate on a Dask scheduler, or 'local' for a LocalCluster")
+    p.add_argument("--plant", metavar="PLANT",
+                   help="tune for this plant file or name: its scenarios run on it, the controller "
+                        "and the spec's LQRs are designed on its linearization")
     p.add_argument("--resume", action="store_true", help="continue the run in -o after a crash")
     p.add_argument("--n-calls", type=int, help="evaluations (default: the spec's)")
     p.add_argument("--seed", type=int, help="default: the spec's")

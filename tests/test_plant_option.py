@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import run_cli
@@ -66,3 +67,53 @@ def test_a_designed_controller_names_its_plant_relative_to_itself_and_travels(ca
     assert json.loads(out)["stable"] is True
     code, out, err = run_cli(capsys, "design", "lqr", "--plant", "qube-servo-3", "--model", "toy")
     assert code == 2 and "give it or --model, not both" in err
+
+
+def _history(folder):
+    return [{k: v for k, v in json.loads(line).items() if k not in ("wall_time", "worker")}
+            for line in (folder / "history.jsonl").read_text().splitlines()]
+
+
+def test_tune_for_another_plant_compares_with_that_plants_lqr(capsys, tmp_path):
+    from furuta_cosim.tuning.spec import load_spec
+
+    out = tmp_path / "run"
+    code, text, err = run_cli(capsys, "tune", "effort", "--plant", "qube-servo-3", "--n-calls", "4",
+                              "--workers", "1", "-o", str(out), "--json")
+    assert code == 0, err
+    document = json.loads(text)
+    assert list(document["baselines"]) == ["lqr-paper-on-qube-servo-3"]
+    assert json.loads((out / "run.json").read_text())["plant"] == "qube-servo-3"
+    assert "model: derived:qube-servo-3" in (out / "best.yaml").read_text()
+    summary = (out / "summary.md").read_text()
+    assert "On plant qube-servo-3" in summary and "designed again for qube-servo-3" in summary
+    # the LQR designed for the plant is the paper's recipe on its linearization
+    spec = load_spec("effort", plant="qube-servo-3")
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.lqr_file import design_lqr_file
+
+    again = load_controller(spec.baselines[0])
+    fresh = design_lqr_file("derived:qube-servo-3", Q=[1, 10, 100, 10, 1], R=[10])
+    np.testing.assert_allclose(again.controller.K, fresh.cfile.controller.K, rtol=1e-12)
+    # the spec's own plant key gives the same search
+    copy = tmp_path / "effort-qube.yaml"
+    copy.write_text((ROOT / "scenarios" / "tuning" / "effort.yaml").read_text() + "plant: qube-servo-3\n")
+    (tmp_path / "controllers").mkdir()
+    shutil.copy(ROOT / "scenarios" / "controllers" / "lqr-paper.yaml", tmp_path / "controllers")
+    code, _, err = run_cli(capsys, "tune", str(copy), "--n-calls", "4", "--workers", "1", "-o", str(tmp_path / "keyed"))
+    assert code == 0, err
+    assert _history(tmp_path / "keyed") == _history(out)
+    # resuming without the plant would mix two searches
+    code, _, err = run_cli(capsys, "tune", "effort", "--n-calls", "6", "-o", str(out), "--resume")
+    assert code == 2 and "--plant (none) differs from the run's qube-servo-3" in err
+
+
+def test_tune_on_a_plant_of_another_model_names_the_scenario(capsys, tmp_path):
+    spec = tmp_path / "toy-on-qube.yaml"
+    spec.write_text("controller: {n_xc: 0, model: toy, time: discrete, period: 1.0}\n"
+                    "parameters: {Dc: {box: [-2, 2]}}\n"
+                    "objective: {type: scenarios, scenarios: [toy-step], terms: [{metric: error.ISE}]}\n"
+                    "plant: qube-servo-3\n")
+    code, out, err = run_cli(capsys, "tune", str(spec), "-o", str(tmp_path / "run"))
+    assert code == 2 and not (tmp_path / "run").exists()
+    assert "objective.scenarios[0]" in err and "runs the toy plant" in err, err

@@ -328,6 +328,10 @@ class Evaluator:
             for j, path in enumerate(spec.objective.scenarios):
                 try:
                     scenario = load_scenario(path)
+                    if spec.plant is not None:
+                        from furuta_cosim.cosim.master import on_plant
+
+                        scenario = on_plant(scenario, spec.plant)
                 except ConfigError as error:
                     raise error.within(f"{spec.source}: objective.scenarios[{j}]") from None
                 for k, overrides in enumerate(spec.variants):

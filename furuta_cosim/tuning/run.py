@@ -2,7 +2,7 @@
 
     run-dir/
       spec.yaml        a copy of the spec
-      run.json         the method and seed it was started with (checked by --resume)
+      run.json         the method, seed and plant it was started with (checked by --resume)
       history.jsonl    one line per evaluation, appended and flushed to disk (fsync) at once
       best.yaml        the best feasible controller, a controller file simulate/analyze accept
       convergence.png  (and .svg) best objective against evaluations
@@ -174,10 +174,11 @@ def _same_run(folder: Path, identity: dict) -> None:
     if spec_text is not None and spec_text != identity["spec"]:
         raise ConfigError([f"--resume: the spec differs from the one {folder} was started with "
                            f"({folder / 'spec.yaml'})"])
-    for key, flag in (("method", "--optimizer"), ("seed", "--seed")):
-        if started.get(key) != identity[key]:
-            raise ConfigError([f"--resume: {flag} {identity[key]} differs from the run's "
-                               f"{started.get(key)} ({folder / 'run.json'})"])
+    for key, flag in (("method", "--optimizer"), ("seed", "--seed"), ("plant", "--plant")):
+        if started.get(key) != identity.get(key):
+            mine, theirs = identity.get(key, "(none)"), started.get(key, "(none)")
+            raise ConfigError([f"--resume: {flag} {mine} differs from the run's {theirs} "
+                               f"({folder / 'run.json'})"])
 
 
 def _executor(spec, evaluator, workers: int, dask: str | None):
@@ -242,6 +243,8 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
                 log(f"warning: {spec.source}: {line}")
     identity = {"spec": Path(spec.path).read_text() if spec.path else spec.name,
                 "method": method, "seed": seed}
+    if spec.plant is not None:
+        identity["plant"] = spec.plant
     if resume:
         _same_run(folder, identity)
     executor = _executor(spec, evaluator, workers, dask)  # a Dask scheduler is reached here
@@ -255,7 +258,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         if not resume:
             if spec.path:
                 write_text(folder / "spec.yaml", identity["spec"])
-            write_text(folder / "run.json", json.dumps({"method": method, "seed": seed}) + "\n")
+            write_text(folder / "run.json", json.dumps({k: v for k, v in identity.items() if k != "spec"}) + "\n")
         history = _History(folder / "history.jsonl", resume, evaluator.space.bounds, log)
         if log:
             log(f"tuning {spec.name} into {folder}, {executor.where}")
@@ -304,7 +307,7 @@ class _Clock(dict):
             saved = {}
         saved = saved if isinstance(saved, dict) else {}
         super().__init__({key: _seconds(saved.get(f"{key}_seconds")) for key in ("optimizer", "evaluation")})
-        self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed")}
+        self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed", "plant") if k in saved}
 
     def save(self) -> None:
         write_text(self.path, json.dumps({**self.identity, "optimizer_seconds": self["optimizer"],
@@ -549,6 +552,9 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
              f"- objective: {document['objective']}" + _described(spec.objective),
              f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
              f"{document['evaluation_seconds']:.1f} s", ""]
+    if spec.plant is not None:
+        lines += [f"On plant {spec.plant}: the controller is designed on its linearization."]
+        lines += [f"- {note}." for note in spec.notes] + [""]
     lines += [f"Warning: {line}." for line in document.get("warnings") or []]
     lines += [""] if document.get("warnings") else []
     best = document["best"]

@@ -120,6 +120,8 @@ class TuningSpec:
     optimizer: OptimizerSettings
     variants: tuple[tuple[tuple[str, float], ...], ...] = ((),)
     baselines: tuple[str, ...] = ()    # controllers scored alike, for the summary
+    plant: str | None = None           # every scenario runs on this plant (a name or a file)
+    notes: tuple[str, ...] = ()        # what running on ``plant`` changed, in words
 
     @property
     def source(self) -> str:
@@ -130,15 +132,21 @@ def spec_path(name: str | Path) -> Path:
     return resolve_file(name, paths.scenarios() / "tuning", "tuning spec")
 
 
-def load_spec(name: str | Path) -> TuningSpec:
-    """Read and validate a tuning spec; the model named is loaded to size the matrices."""
+def load_spec(name: str | Path, plant: str | Path | None = None) -> TuningSpec:
+    """Read and validate a tuning spec; the model named is loaded to size the matrices.
+
+    ``plant`` (``tune --plant``; else the spec's ``plant`` key): every scenario runs on that
+    plant, the controller is designed on its linearization (``derived:PLANT``, whatever
+    ``controller.model`` says), and every LQR the spec names (baselines, relative terms,
+    constraints, initial points) is designed again for it with its own recipe (the same Q, R
+    and period), so that the spec compares with the LQR of the plant it tunes for."""
     from furuta_cosim.models import load_model
 
     path = spec_path(name)
     check = Checker(path)
     top = check.mapping(load_yaml(path), "", required=("controller", "parameters", "objective"),
                         optional=("name", "description", "constraints", "optimizer", "variants",
-                                  "baselines"))
+                                  "baselines", "plant"))
     if top is None:
         check.done()
     controller = check.mapping(top.get("controller", {}), "controller", required=("n_xc", "model"),
@@ -148,17 +156,32 @@ def load_spec(name: str | Path) -> TuningSpec:
     time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
     period = check.period(controller.get("period", PAPER_PERIOD), "controller.period")
     model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
+    where = "--plant" if plant is not None else "plant"
+    if plant is None and "plant" in top:
+        plant = check.string(top["plant"], "plant")
     check.done()
+    if plant is not None:
+        from furuta_cosim.fmu.plants import load_plant
+
+        try:
+            given = load_plant(plant, beside=path.parent if where == "plant" else None)
+        except ConfigError as error:
+            raise error.within(f"{path}: plant" if where == "plant" else "--plant") from None
+        plant = _portable_model(str(given.path), path.parent) if where == "plant" else str(given.path.resolve())
+        plant = given.name if _is_shipped(given) else plant
+        model_name = f"derived:{plant}"
     try:
         model = load_model(model_name, beside=path.parent)
         model_name = _portable_model(model_name, path.parent)
     except ConfigError as error:
-        raise error.within(f"{path}: controller.model") from None
+        raise error.within(f"{path}: controller.model" if plant is None else f"{path}: {where}") from None
+    notes = []
     n_x, n_u = model.n, model.B.shape[1]
     shapes = {"Ac": (n_xc, n_xc), "Bc": (n_xc, n_x), "Cc": (n_u, n_xc), "Dc": (n_u, n_x)}
     parameters = check.mapping(top.get("parameters"), "parameters", optional=tuple(shapes)) or {}
     # a matrix the spec leaves out is zero (Dc excepted: the plant needs feedback)
-    resolve = lambda name, key: _controller_file(check, name, key, model)  # noqa: E731
+    resolve = lambda name, key: _for_plant(_controller_file(check, name, key, model), plant, model,  # noqa: E731
+                                           model_name, notes)
     blocks = tuple(_block(check, parameters[key], key, shape, resolve) if key in parameters
                    else (Block(key, "fixed", shape) if key != "Dc" else _block(check, None, key, shape))
                    for key, shape in shapes.items())
@@ -168,16 +191,16 @@ def load_spec(name: str | Path) -> TuningSpec:
     variants = _variants(check, top.get("variants", [{}]))
     baselines = ()
     if "baselines" in top:
-        baselines = tuple(_controller_file(check, name, f"baselines[{k}]", model)
+        baselines = tuple(resolve(name, f"baselines[{k}]")
                           for k, name in enumerate(check.names(top["baselines"], "baselines") or ()))
     initial = (top.get("optimizer") or {}).get("initial", []) if isinstance(top.get("optimizer"), dict) else []
     if optimizer and initial:
         optimizer = replace(optimizer, initial=tuple(
-            _controller_file(check, name, f"optimizer.initial[{k}]", model)
+            resolve(name, f"optimizer.initial[{k}]")
             for k, name in enumerate(check.names(initial, "optimizer.initial") or ())))
     if constraints.baseline:
-        constraints = replace(constraints, baseline=_controller_file(
-            check, constraints.baseline, "constraints.no_worse_than.controller", model))
+        constraints = replace(constraints, baseline=resolve(
+            constraints.baseline, "constraints.no_worse_than.controller"))
     if objective and objective.type == "spectral":
         for key in ("max_abs", "no_worse_than", "requirements"):
             if key in (top.get("constraints") or {}):
@@ -201,7 +224,50 @@ def load_spec(name: str | Path) -> TuningSpec:
         check.fail("parameters", "every matrix is fixed: nothing to tune")
     check.done()
     return TuningSpec(name, description, path, n_xc, time == "discrete", period, model_name, blocks,
-                      objective, constraints, optimizer, variants, baselines)
+                      objective, constraints, optimizer, variants, baselines, plant,
+                      tuple(dict.fromkeys(notes)))
+
+
+def _is_shipped(plant) -> bool:
+    from furuta_cosim.fmu.plants import plant_path
+
+    try:
+        return plant_path(plant.name).resolve() == Path(plant.path).resolve()
+    except ConfigError:
+        return False
+
+
+def _for_plant(path: str, plant: str | None, model, model_name: str, notes: list) -> str:
+    """The controller file ``path``, or with a plant the same LQR recipe designed on the
+    plant's linearization (written once to the cache, named ``<name>-on-<plant>``)."""
+    if plant is None or not Path(path).is_file():
+        return path
+    import hashlib
+
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.lqr_file import design_lqr_file
+
+    cfile = load_controller(path)
+    recipe = cfile.controller.provenance or {}
+    method = str(recipe.get("method", ""))
+    label = Path(str(plant)).stem
+    if not (method.startswith(("dlqr", "lqr")) and "Q" in recipe and "R" in recipe):
+        notes.append(f"{cfile.name} is not an LQR design: it is compared on {label} as it is")
+        return path
+    continuous = not method.startswith("dlqr")
+    period = float(recipe.get("period") or cfile.period or PAPER_PERIOD)
+    key = hashlib.sha256(Path(path).read_bytes() + model.A.tobytes() + model.B.tobytes()
+                         + repr((method, period)).encode()).hexdigest()[:16]
+    target = paths.cache() / "designs" / key / f"{cfile.name}-on-{label}.yaml"
+    if not target.is_file():
+        design_lqr_file(model_name, Q=list(np.ravel(recipe["Q"])), R=list(np.ravel(recipe["R"])),
+                        period=period, continuous=continuous, name=target.stem,
+                        track=cfile.tracked_output,
+                        description=f"{cfile.name}'s recipe (the same Q, R and period) on {label}",
+                        output=target)
+    notes.append(f"{cfile.name} is designed again for {label} with its own Q, R and period "
+                 f"({target.stem})")
+    return str(target)
 
 
 def _portable_model(name: str, folder: Path) -> str:
