@@ -3,7 +3,7 @@ beside the LQR scored alike and the best value known, in one run.
 
     python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--first-seed 0] [--calls 150]
                                [--workers 2] [--methods ours,global,before,random,de,skopt]
-                               [--best-known 3000] [--kernel NAME] [-o FOLDER]
+                               [--best-known 3000] [--kernel NAME] [--plant PLANT] [-o FOLDER]
 
 Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``):
 
@@ -194,7 +194,7 @@ def measure(args, work: Path) -> dict:
     results: dict = {}
     timer = Timer()
     for name in args.specs:
-        spec = load_spec(name)
+        spec = load_spec(name, plant=args.plant)
         rows, lqr = {}, None
         for method in args.methods:
             for seed in range(args.first_seed, args.first_seed + args.seeds):
@@ -291,6 +291,8 @@ def main() -> int:
                         type=lambda text: [m for m in text.split(",") if m])
     parser.add_argument("--best-known", type=int, default=3000, help="evaluations of the de run (0: none)")
     parser.add_argument("--kernel", help="rerun 'ours' under OPENBLAS_CORETYPE=KERNEL and compare")
+    parser.add_argument("--plant", help="tune for this plant file or name (tune --plant): the LQR "
+                                        "row is the spec's LQR designed again for it")
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one)")
     parser.add_argument("--json", help=argparse.SUPPRESS)  # a child's results (--kernel)
     args = parser.parse_args()
@@ -317,6 +319,7 @@ def main() -> int:
     if args.kernel:
         child = work / f"kernel-{args.kernel}"
         command = [sys.executable, __file__, "--specs", *args.specs, "--seeds", str(args.seeds),
+                   *(["--plant", args.plant] if args.plant else []),
                    "--calls", str(args.calls), "--workers", str(args.workers), "--methods", "ours",
                    "--best-known", "0", "-o", str(child), "--json", str(child / "results.json")]
         subprocess.run(command, env={**os.environ, "OPENBLAS_CORETYPE": args.kernel}, check=True)

@@ -218,6 +218,31 @@ class Evaluator:
                            for criterion in spec.objective.criteria])
         return self._outcome(scores, violation, constraints, metrics, slacks)
 
+    def by_variant(self, metrics: dict) -> list[float | None]:
+        """The objective of one controller on each plant variant alone, from its metrics by run
+        (the spec's own terms and aggregate over that variant's scenarios); None for a
+        variant where a run has no finite value."""
+        found = []
+        for k in range(len(self.spec.variants)):
+            suffix = f"[{k}]" if len(self.spec.variants) > 1 else ""
+            labels = [label for label, _, _ in self.runs() if label.endswith(suffix)] if suffix else \
+                [label for label, _, _ in self.runs()]
+            scores = []
+            for label in labels:
+                values = metrics.get(label) or {}
+                scores.append([self._criterion(c, label, {m: (v if isinstance(v, float) else math.inf)
+                                                           for m, v in values.items()})
+                               for c in self.spec.objective.criteria])
+            totals = []
+            for j, criterion in enumerate(self.spec.objective.criteria):
+                column = [run[j] for run in scores]
+                if not column or not all(math.isfinite(v) for v in column):
+                    totals = None
+                    break
+                totals.append(max(column) if criterion.aggregate == "worst" else float(np.mean(column)))
+            found.append(float(np.mean(totals)) if totals else None)
+        return found
+
     def _criterion(self, criterion, label: str, metrics: dict) -> float:
         """One criterion's weighted terms on one run (a relative term divided by its
         controller's value on the same run)."""

@@ -499,6 +499,21 @@ def _differential_evolution(spec, evaluator, executor, history, n_calls, seed, b
     clock["optimizer"] += time.perf_counter() - started - (clock["evaluation"] - waited)
 
 
+def _variant_spread(evaluator, document) -> dict:
+    """Per controller (the tuned one, each baseline): its objective on each plant variant
+    alone, the worst of them and their spread."""
+    found = {}
+    candidates = ([("tuned", document["best"]["metrics"])] if document["best"] else []) + [
+        (name, b.get("metrics") or {}) for name, b in document["baselines"].items()]
+    for name, metrics in candidates:
+        scores = evaluator.by_variant(metrics)
+        known = [v for v in scores if v is not None]
+        found[name] = {"scores": scores,
+                       "worst": max(known) if len(known) == len(scores) else None,
+                       "best": min(known) if known else None}
+    return found
+
+
 def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> dict:
     from furuta_cosim.controllers import load_controller
     from furuta_cosim.tuning.saved import save_scored
@@ -532,6 +547,8 @@ def _finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> d
                             "origin": best.get("origin") or "", "parameters": best["parameters"],
                             "metrics": best["metrics"], "file": "best.yaml",
                             "prefilter": prefilter}
+    if len(spec.variants) > 1 and spec.objective.type == "scenarios":
+        document["variants"] = _variant_spread(evaluator, document)
     if spec.objective.type == "tradeoff":
         from furuta_cosim.tuning.front import write_front
 
@@ -565,6 +582,14 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
                                                     if F else "") + ").")
     else:
         lines.append("No feasible controller was found.")
+    if document.get("variants"):
+        lines.append(f"Over the {len(spec.variants)} plant variants, each scored alone (the "
+                     "objective on that variant's scenarios):")
+        for name, v in document["variants"].items():
+            worst = "a run without a finite value" if v["worst"] is None else f"{v['worst']:.6g}"
+            spread = "" if v["best"] is None else f", best {v['best']:.6g}"
+            lines.append(f"- {name}: worst {worst}{spread}")
+        lines.append("")
     if document.get("front") is not None:
         from furuta_cosim.tuning.front import summary_lines
 

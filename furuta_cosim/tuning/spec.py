@@ -159,15 +159,18 @@ def load_spec(name: str | Path, plant: str | Path | None = None) -> TuningSpec:
     where = "--plant" if plant is not None else "plant"
     if plant is None and "plant" in top:
         plant = check.string(top["plant"], "plant")
+    variants, fitted = _variants(check, top.get("variants", [{}]), path.parent)
     check.done()
+    if plant is None and fitted is not None:
+        plant, where = str(fitted), "variants.from_fit"
     if plant is not None:
         from furuta_cosim.fmu.plants import load_plant
 
         try:
             given = load_plant(plant, beside=path.parent if where == "plant" else None)
         except ConfigError as error:
-            raise error.within(f"{path}: plant" if where == "plant" else "--plant") from None
-        plant = _portable_model(str(given.path), path.parent) if where == "plant" else str(given.path.resolve())
+            raise error.within("--plant" if where == "--plant" else f"{path}: {where}") from None
+        plant = _portable_model(str(given.path), path.parent) if where != "--plant" else str(given.path.resolve())
         plant = given.name if _is_shipped(given) else plant
         model_name = f"derived:{plant}"
     try:
@@ -188,7 +191,6 @@ def load_spec(name: str | Path, plant: str | Path | None = None) -> TuningSpec:
     objective = _objective(check, top.get("objective"), resolve)
     constraints = _constraints(check, top.get("constraints", {}))
     optimizer = _optimizer(check, top.get("optimizer", {}))
-    variants = _variants(check, top.get("variants", [{}]))
     baselines = ()
     if "baselines" in top:
         baselines = tuple(resolve(name, f"baselines[{k}]")
@@ -582,12 +584,38 @@ def _optimizer(check: Checker, value) -> OptimizerSettings | None:
     return OptimizerSettings(**values)
 
 
-def _variants(check: Checker, value) -> tuple:
+def _variants(check: Checker, value, folder: Path) -> tuple[tuple, Path | None]:
+    """The plant variants, and with ``{from_fit: FILE, samples, seed}`` the fitted plant
+    (``plant.yaml`` beside the fit) they vary."""
+    if isinstance(value, dict):
+        from furuta_cosim.identify.variants import MAX_SAMPLES, variants_from_fit
+
+        section = check.mapping(value, "variants", required=("from_fit",), optional=("samples", "seed"))
+        text = check.string(section.get("from_fit"), "variants.from_fit") if section else None
+        samples = check.number(section.get("samples", 8), "variants.samples", integer=True, minimum=1,
+                               maximum=MAX_SAMPLES) if section else None
+        seed = check.number(section.get("seed", 0), "variants.seed", integer=True, minimum=0,
+                            maximum=MAX_SEED) if section else None
+        if text is None or samples is None or seed is None:
+            return ((),), None
+        fit = Path(text) if Path(text).is_absolute() else folder / text
+        plant = fit.parent / "plant.yaml"
+        if not fit.is_file() or not plant.is_file():
+            check.fail("variants.from_fit", f"{fit}: expected the fit.json of an identify run, with "
+                                            "its plant.yaml beside it")
+            return ((),), None
+        try:
+            found = variants_from_fit(fit, samples, seed)
+        except ConfigError as error:
+            check.problems.extend(error.within(f"{check.source}: variants.from_fit").problems)
+            return ((),), None
+        return tuple(tuple(v.items()) for v in found), plant
     if not isinstance(value, list) or not value:
-        check.fail("variants", "expected a list of parameter overrides ({} is the plant as it is)")
-        return ((),)
+        check.fail("variants", "expected a list of parameter overrides ({} is the plant as it is), "
+                               "or {from_fit: FILE, samples: N, seed: S}")
+        return ((),), None
     result = []
     for k, item in enumerate(value):
         overrides = check.numbers(item, f"variants[{k}]")
         result.append(tuple(overrides.items()))
-    return tuple(result)
+    return tuple(result), None
