@@ -13,6 +13,8 @@
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -235,3 +237,24 @@ def save_controller(cfile: ControllerFile, path: str | Path) -> Path:
                           width=100)
     return write_text(output_file(path),
                       f"# Written by furuta-cosim; see provenance for how it was designed.\n{text}")
+
+
+def recorded_model(model_name: str, folder: Path | None = None) -> str:
+    """The model as a controller file in ``folder`` records it: a name as it is, a file by its
+    path relative to ``folder`` (absolute without one: ``derived:variant.yaml`` given from
+    another folder could not be found again otherwise)."""
+    fmu, hash_, mapping = str(model_name).partition("#")
+    if fmu.endswith(".fmu"):
+        return _relative(fmu, folder) + (f"#{_relative(mapping, folder)}" if hash_ else "")
+    kind, colon, rest = str(model_name).partition(":")
+    if kind == "derived" and colon:
+        return f"derived:{recorded_model(rest, folder)}"
+    path = Path(model_name)
+    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+        return _relative(path, folder)
+    return str(model_name)
+
+
+def _relative(path: str | Path, folder: Path | None) -> str:
+    resolved = Path(path).resolve()
+    return os.path.relpath(resolved, Path(folder).resolve()) if folder is not None else str(resolved)

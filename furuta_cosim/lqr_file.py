@@ -6,7 +6,6 @@ analyzes a controller file on the model it names (:func:`analyze_file`, ``analyz
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -14,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from furuta_cosim.controllers import (ControllerFile, check_fits, default_output, load_controller,
-                                      save_controller)
+                                      recorded_model, save_controller)
 from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.design import analyze, lqr, prefilter
 from furuta_cosim.design.analysis import Analysis
@@ -98,32 +97,11 @@ def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
     except DesignError as error:
         raise DesignError(f"--track {tracked}: {error}") from None
     cfile = ControllerFile(controller, controller.period or (0.0 if continuous else period),
-                           _recorded_model(model_name, Path(output).parent if output else None),
+                           recorded_model(model_name, Path(output).parent if output else None),
                            tracked, F, description,
                            provenance=controller.provenance)
     path = save_controller(cfile, output) if output else None
     return Design(cfile, model, analyze(model, controller), path)
-
-
-def _recorded_model(model_name: str, folder: Path | None = None) -> str:
-    """The model as a controller file in ``folder`` records it: a name as it is, a file by its
-    path relative to ``folder`` (absolute without one: ``derived:variant.yaml`` given from
-    another folder could not be found again otherwise)."""
-    fmu, hash_, mapping = str(model_name).partition("#")
-    if fmu.endswith(".fmu"):
-        return _relative(fmu, folder) + (f"#{_relative(mapping, folder)}" if hash_ else "")
-    kind, colon, rest = str(model_name).partition(":")
-    if kind == "derived" and colon:
-        return f"derived:{_recorded_model(rest, folder)}"
-    path = Path(model_name)
-    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
-        return _relative(path, folder)
-    return str(model_name)
-
-
-def _relative(path: str | Path, folder: Path | None) -> str:
-    resolved = Path(path).resolve()
-    return os.path.relpath(resolved, Path(folder).resolve()) if folder is not None else str(resolved)
 
 
 def _model_source(model_name: str) -> str:

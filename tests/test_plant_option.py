@@ -117,3 +117,23 @@ def test_tune_on_a_plant_of_another_model_names_the_scenario(capsys, tmp_path):
     code, out, err = run_cli(capsys, "tune", str(spec), "-o", str(tmp_path / "run"))
     assert code == 2 and not (tmp_path / "run").exists()
     assert "objective.scenarios[0]" in err and "runs the toy plant" in err, err
+
+
+def test_a_run_directory_travels_with_its_plant(capsys, tmp_path):
+    work = tmp_path / "lab"
+    (work / "plants").mkdir(parents=True)
+    (work / "plants" / "rig.yaml").write_text("model: furuta\nextends: qube-servo-3\nparameters: {R_a: 7.7}\n")
+    code, text, err = run_cli(capsys, "tune", "effort", "--plant", str(work / "plants" / "rig.yaml"),
+                              "--n-calls", "3", "--workers", "1", "-o", str(work / "runs" / "effort"), "--json")
+    assert code == 0, err
+    best = (work / "runs" / "effort" / "best.yaml").read_text()
+    assert "model: derived:../../plants/rig.yaml" in best and str(tmp_path) not in best
+    recorded = json.loads(text)["best"]["metrics"]["paper-tracking"]["u.rms"]
+    moved = tmp_path / "moved"
+    shutil.move(str(work), moved)
+    code, out, err = run_cli(capsys, "analyze", str(moved / "runs" / "effort" / "best.yaml"))
+    assert code in (0, 1) and "derived:rig" in out, err
+    code, out, err = run_cli(capsys, "simulate", "paper-tracking", "--plant", str(moved / "plants" / "rig.yaml"),
+                             "--controller", str(moved / "runs" / "effort" / "best.yaml"),
+                             "-o", str(tmp_path / "sim"), "--json")
+    assert json.loads(out)["controllers"]["effort-best"]["metrics"]["u.rms"] == pytest.approx(recorded, rel=1e-9)

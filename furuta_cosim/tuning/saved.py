@@ -12,7 +12,7 @@ from furuta_cosim.tuning.objective import Evaluator
 def save_scored(evaluator: Evaluator, record: dict, path: Path, name: str, description: str,
                 method: str, seed: int) -> dict:
     """Write the controller of history ``record`` to ``path``; its prefilter (output and F)."""
-    from furuta_cosim.controllers import ControllerFile, save_controller
+    from furuta_cosim.controllers import ControllerFile, recorded_model, save_controller
 
     spec = evaluator.spec
     controller = evaluator.space.controller(record["x"], name=name)
@@ -22,7 +22,9 @@ def save_scored(evaluator: Evaluator, record: dict, path: Path, name: str, descr
                   "origin": record.get("origin") or ""}
     if record.get("criteria"):
         provenance["criteria"] = record["criteria"]
-    save_controller(ControllerFile(controller, spec.period, spec.model, tracked, F, description,
+    # the model by a path relative to the file: a run directory travels with its plant
+    model = recorded_model(spec.model, Path(path).parent)
+    save_controller(ControllerFile(controller, spec.period, model, tracked, F, description,
                                    provenance=provenance), path)
     return {"output": tracked, "F": F}
 
