@@ -241,7 +241,11 @@ def cmd_tune(args) -> int:
     from furuta_cosim.tuning.run import summary_text, tune
     from furuta_cosim.tuning.spec import load_spec
 
-    spec = load_spec(args.spec, plant=args.plant)
+    if (args.samples is not None or args.variants_seed is not None) and not args.from_fit:
+        raise ConfigError(["--samples and --variants-seed draw variants from a fit: give --from-fit FIT"])
+    spec = load_spec(args.spec, plant=args.plant, from_fit=(
+        args.from_fit, 8 if args.samples is None else args.samples,
+        0 if args.variants_seed is None else args.variants_seed) if args.from_fit else None)
     out = Path(args.output or Path("runs") / spec.name)
     started = time.monotonic()
     bar = Progress(delay=0.0, unit="evaluation")
@@ -252,7 +256,11 @@ def cmd_tune(args) -> int:
         bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
     workers = _workers(args)
-    args.resume_with = f"furuta-cosim tune {args.spec} -o {out}" + (f" --plant {args.plant}" if args.plant else "") + " --resume"
+    args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out)]
+                                + (["--plant", args.plant] if args.plant else [])
+                                + (["--from-fit", args.from_fit, "--samples", str(args.samples or 8),
+                                    "--variants-seed", str(args.variants_seed or 0)] if args.from_fit else [])
+                                + ["--resume"])
     try:
         document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
                         workers=workers, dask=args.dask, resume=args.resume, progress=progress,
@@ -566,6 +574,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plant", metavar="PLANT",
                    help="tune for this plant file or name: its scenarios run on it, the controller "
                         "and the spec's LQRs are designed on its linearization")
+    p.add_argument("--from-fit", metavar="FIT", help="robust to a fit: plant variants drawn from "
+                                                    "this identify run's fit.json, on its plant.yaml")
+    p.add_argument("--samples", type=int, help="with --from-fit: variants besides the point estimate (default 8)")
+    p.add_argument("--variants-seed", type=int, help="with --from-fit: the seed of the variants' design (default 0)")
     p.add_argument("--resume", action="store_true", help="continue the run in -o after a crash")
     p.add_argument("--n-calls", type=int, help="evaluations (default: the spec's)")
     p.add_argument("--seed", type=int, help="default: the spec's")

@@ -132,14 +132,17 @@ def spec_path(name: str | Path) -> Path:
     return resolve_file(name, paths.scenarios() / "tuning", "tuning spec")
 
 
-def load_spec(name: str | Path, plant: str | Path | None = None) -> TuningSpec:
+def load_spec(name: str | Path, plant: str | Path | None = None,
+              from_fit: tuple[str | Path, int, int] | None = None) -> TuningSpec:
     """Read and validate a tuning spec; the model named is loaded to size the matrices.
 
     ``plant`` (``tune --plant``; else the spec's ``plant`` key): every scenario runs on that
     plant, the controller is designed on its linearization (``derived:PLANT``, whatever
     ``controller.model`` says), and every LQR the spec names (baselines, relative terms,
     constraints, initial points) is designed again for it with its own recipe (the same Q, R
-    and period), so that the spec compares with the LQR of the plant it tunes for."""
+    and period), so that the spec compares with the LQR of the plant it tunes for.
+    ``from_fit`` (``tune --from-fit FIT --samples N --variants-seed S``): the spec's variants
+    are drawn from that identify run instead, as ``variants: {from_fit: ...}`` does."""
     from furuta_cosim.models import load_model
 
     path = spec_path(name)
@@ -159,7 +162,20 @@ def load_spec(name: str | Path, plant: str | Path | None = None) -> TuningSpec:
     where = "--plant" if plant is not None else "plant"
     if plant is None and "plant" in top:
         plant = check.string(top["plant"], "plant")
-    variants, fitted = _variants(check, top.get("variants", [{}]), path.parent)
+    if from_fit is not None:
+        from furuta_cosim.identify.variants import MAX_SAMPLES
+
+        fit, samples, seed = from_fit
+        flags = Checker("--from-fit")
+        for flag, value, low, high in (("--samples", samples, 1, MAX_SAMPLES),
+                                       ("--variants-seed", seed, 0, MAX_SEED)):
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ConfigError([f"{flag}: expected a whole number from {low} to {high}, got {value}"])
+        variants, fitted = _variants(flags, {"from_fit": str(Path(fit).resolve()), "samples": samples,
+                                             "seed": seed}, Path.cwd())
+        flags.done()
+    else:
+        variants, fitted = _variants(check, top.get("variants", [{}]), path.parent)
     check.done()
     if plant is None and fitted is not None:
         plant, where = str(fitted), "variants.from_fit"
