@@ -133,7 +133,7 @@ class Space:
         n_xc = self.blocks[0].shape[0]
         if c.n_xc not in (0, n_xc):
             return None, f"it has {c.n_xc} controller state(s); the search has {n_xc}"
-        x, rebuilt = [], {}
+        x = []
         for block in self.blocks:
             given = {"Ac": c.Ac, "Bc": c.Bc, "Cc": c.Cc, "Dc": c.Dc}[block.key]
             static = c.n_xc == 0 and block.key != "Dc"
