@@ -664,7 +664,8 @@ def test_design_lqr_names_the_file_after_its_output_and_records_a_findable_model
     assert done.returncode == 0, done.stderr
     data = yaml.safe_load((tmp_path / "out" / "my-lqr.yaml").read_text())
     assert data["name"] == "my-lqr"
-    assert data["model"] == f"derived:{tmp_path / 'sub' / 'variant.yaml'}"
+    # relative to the controller file's own folder: the folder travels with its plant
+    assert data["model"] == "derived:../sub/variant.yaml"
     monkeypatch.chdir(tmp_path / "out")
     done = subprocess.run(CLI + ["analyze", "my-lqr.yaml"], capture_output=True, text=True)
     assert done.returncode in (0, 1) and "error" not in done.stderr, done.stderr
