@@ -468,10 +468,7 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
                 shown = ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
                 raise NotApplicable([f"{scenario.source}: its plant has no parameter {shown} (--params)"])
         except NotApplicable as error:
-            for name in scenario.controllers:
-                label = Path(name).stem
-                unfit.append(Case(scenario.name, label, baseline_path(scenario, label, baselines),
-                                  "n/a", notes=list(error.problems)))
+            unfit += _cases_not_run(scenario, "n/a", error, baselines)
             continue
         if plant_mapping is not None:
             from dataclasses import replace
@@ -482,10 +479,7 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             prepared = prepare(scenario, fmu=fmu, overrides=overrides)
         except PlantUnfit as error:
             # this scenario asks what the given FMU cannot do: a failed case, the others still run
-            for name in scenario.controllers:
-                label = Path(name).stem
-                unfit.append(Case(scenario.name, label, baseline_path(scenario, label, baselines),
-                                  "unfit", notes=list(error.problems)))
+            unfit += _cases_not_run(scenario, "unfit", error, baselines)
             continue
         for compiled in scenario_controllers(prepared):
             target = baseline_path(scenario, compiled.name, baselines)
@@ -535,6 +529,12 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
         write_text(Path(output) / "regress.json", dumps(report.to_dict(), indent=1))
         write_junit(report, Path(output) / "regress.xml")
     return report
+
+
+def _cases_not_run(scenario: Scenario, status: str, error: ConfigError, baselines) -> list[Case]:
+    """A case per controller of a scenario that did not run (unfit, n/a), with the reason."""
+    return [Case(scenario.name, Path(name).stem, baseline_path(scenario, Path(name).stem, baselines),
+                 status, notes=list(error.problems)) for name in scenario.controllers]
 
 
 def _run_all(jobs, workers: int, progress) -> list[RunResult]:
