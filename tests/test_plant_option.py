@@ -110,7 +110,8 @@ def test_tune_for_another_plant_compares_with_that_plants_lqr(capsys, tmp_path):
 
 def test_tune_on_a_plant_of_another_model_names_the_scenario(capsys, tmp_path):
     spec = tmp_path / "toy-on-qube.yaml"
-    spec.write_text("controller: {n_xc: 0, model: toy, time: discrete, period: 1.0}\n"
+    # at a period the QUBE allows, so that what is refused is the scenario's model
+    spec.write_text("controller: {n_xc: 0, model: toy, time: discrete, period: 0.002}\n"
                     "parameters: {Dc: {box: [-2, 2]}}\n"
                     "objective: {type: scenarios, scenarios: [toy-step], terms: [{metric: error.ISE}]}\n"
                     "plant: qube-servo-3\n")
@@ -137,3 +138,45 @@ def test_a_run_directory_travels_with_its_plant(capsys, tmp_path):
                              "--controller", str(moved / "runs" / "effort" / "best.yaml"),
                              "-o", str(tmp_path / "sim"), "--json")
     assert json.loads(out)["controllers"]["effort-best"]["metrics"]["u.rms"] == pytest.approx(recorded, rel=1e-9)
+
+
+def _plant_with_limits(tmp_path, limits: str) -> Path:
+    plant = tmp_path / "rig.yaml"
+    plant.write_text(f"model: furuta\nextends: qube-servo-3\nlimits: {limits}\n")
+    return plant
+
+
+def test_a_plant_states_the_control_periods_it_allows(capsys, tmp_path):
+    from furuta_cosim.fmu.plants import load_plant
+
+    assert load_plant("qube-servo-3").control_period == (None, 0.004)
+    assert load_plant("paper-calibrated").control_period == (None, None)
+    # a plant that extends another keeps the bounds it does not restate
+    assert load_plant(_plant_with_limits(tmp_path, "{control_period: {min: 0.001}}")).control_period == (0.001, 0.004)
+    # a scenario of that model at a period the plant refuses: one line naming both files
+    code, out, err = run_cli(capsys, "simulate", "paper-step", "--plant",
+                             str(_plant_with_limits(tmp_path, "{control_period: {min: 0.003}}")),
+                             "-o", str(tmp_path / "out"))
+    assert code == 2 and err.count("\n") == 1, err
+    assert "paper-step.yaml: timing.control_period: 0.002 s is outside what the rig plant allows " \
+           "(rig.yaml: limits.control_period: min 0.003 and max 0.004)" in err
+    # and a tuning spec whose controller runs at that period
+    code, out, err = run_cli(capsys, "tune", "effort", "--plant", str(tmp_path / "rig.yaml"),
+                             "-o", str(tmp_path / "tune"))
+    assert code == 2 and "effort.yaml: controller.period: 0.002 s is outside what the rig plant allows" in err
+    assert not (tmp_path / "tune").exists()
+
+
+@pytest.mark.parametrize("limits, message", [
+    ("{control_period: {min: 0.01, max: 0.001}}", "limits.control_period: min (0.01) is above max (0.001)"),
+    ("{control_period: {max: -1}}", "limits.control_period.max: must be > 0, got -1"),
+    ("{period: 1}", "limits.period: unknown key (expected one of: control_period)"),
+    ("[1, 2]", "limits: expected a mapping"),
+])
+def test_a_plants_limits_are_checked_like_the_rest_of_it(tmp_path, limits, message):
+    from furuta_cosim.errors import ConfigError
+    from furuta_cosim.fmu.plants import load_plant
+
+    with pytest.raises(ConfigError) as raised:
+        load_plant(_plant_with_limits(tmp_path, limits))
+    assert message in str(raised.value) and "rig.yaml" in str(raised.value)

@@ -423,6 +423,11 @@ def state_names_of(variables: dict) -> list[str]:
             if v.causality == "output" and start_parameter(n) in variables]
 
 
+def _bounds(low, high) -> str:
+    return " and ".join(part for part in (f"min {low:g}" if low is not None else "",
+                                          f"max {high:g}" if high is not None else "") if part)
+
+
 def _timing(scenario: Scenario, plant: PlantSet | None, fail) -> tuple[float, float, int, str]:
     """Control period, communication step, number of samples and time unit. Runs beyond the
     documented limits are refused with an estimate, before anything is allocated."""
@@ -439,6 +444,10 @@ def _timing(scenario: Scenario, plant: PlantSet | None, fail) -> tuple[float, fl
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         fail("timing.control_period", f"must be a whole multiple of timing.communication_step "
              f"({step:g}), got {period:g}")
+    low, high = plant.control_period if plant else (None, None)
+    if (low is not None and period < low * (1 - 1e-12)) or (high is not None and period > high * (1 + 1e-12)):
+        fail("timing.control_period", f"{period:g} s is outside what the {plant.name} plant allows "
+             f"({plant.path.name}: limits.control_period: {_bounds(low, high)})")
     if sample:
         k = step / sample
         if not k <= MAX_SUBSTEPS_PER_SAMPLE or abs(k - round(k)) > 1e-9 * k or round(k) < 1:

@@ -43,6 +43,8 @@ class PlantSet:
     description: str
     parameters: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
     linear: LinearSpec | None = None
+    # the rig's own limits: control_period (min, max) in s, either None when not stated
+    control_period: tuple = (None, None)
 
 
 def plant_path(name: str | Path, also: tuple[str, ...] = (), beside: Path | None = None) -> Path:
@@ -117,14 +119,38 @@ def _load(path: Path, seen: tuple) -> PlantSet:
             check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
         parameters.update(base.parameters)
     parameters.update(check.numbers(top.get("parameters", {}), "parameters"))
+    period = base.control_period if "extends" in top else (None, None)
+    if "limits" in top:
+        period = _limits(check, top["limits"], period)
     if "provenance" in top:  # where the values come from (identify writes it): read by people only
         check.mapping(top["provenance"], "provenance", optional=tuple(top["provenance"])
                       if isinstance(top["provenance"], dict) else ())
     check.done()
-    return PlantSet(path.stem, path, model, str(description), Frozen(parameters))
+    return PlantSet(path.stem, path, model, str(description), Frozen(parameters),
+                    control_period=period)
 
 
-_NONLINEAR_KEYS = ("description", "extends", "parameters", "provenance")
+def _limits(check: Checker, value, inherited: tuple) -> tuple:
+    """``limits: {control_period: {min: S, max: S}}``: the periods the rig allows (its I/O
+    hardware, the model's substeps); either bound may be left out, and one not given is the
+    base plant's."""
+    limits = check.mapping(value, "limits", optional=("control_period",))
+    if not limits or "control_period" not in limits:
+        return inherited
+    bounds = check.mapping(limits["control_period"], "limits.control_period", optional=("min", "max"))
+    if bounds is None:
+        return inherited
+    low, high = inherited
+    if "min" in bounds:
+        low = check.period(bounds["min"], "limits.control_period.min")
+    if "max" in bounds:
+        high = check.period(bounds["max"], "limits.control_period.max")
+    if low is not None and high is not None and low > high:
+        check.fail("limits.control_period", f"min ({low:g}) is above max ({high:g})")
+    return low, high
+
+
+_NONLINEAR_KEYS = ("description", "extends", "parameters", "provenance", "limits")
 _LINEAR_KEYS = ("description", "identifier", "time", "period", "substeps", "A", "B", "C", "D",
                 "inputs", "outputs", "time_unit", "states", "x0")
 # an identifier names the FMU's C functions and files: no C keyword, no FMI name

@@ -186,6 +186,12 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
             given = load_plant(plant, beside=path.parent if where == "plant" else None)
         except ConfigError as error:
             raise error.within("--plant" if where == "--plant" else f"{path}: {where}") from None
+        low, high = given.control_period
+        if period is not None and ((low is not None and period < low * (1 - 1e-12))
+                                   or (high is not None and period > high * (1 + 1e-12))):
+            bounds = " and ".join(f"{name} {v:g}" for name, v in (("min", low), ("max", high)) if v is not None)
+            raise ConfigError([f"{path}: controller.period: {period:g} s is outside what the "
+                               f"{given.name} plant allows ({given.path.name}: limits.control_period: {bounds})"])
         plant = _portable_model(str(given.path), path.parent) if where != "--plant" else str(given.path.resolve())
         plant = given.name if _is_shipped(given) else plant
         model_name = f"derived:{plant}"
