@@ -4,8 +4,9 @@ A baseline is one small YAML file per scenario and controller,
 ``<scenario folder>/baselines/<scenario>/<controller>.yaml``: the metrics of the run, its trace
 downsampled to about ``regression.points`` rows (one row per line, so a change shows as a
 diff), and the versions it was made from (a hash of the scenario file and of the controller
-file, the plant FMU's GUID and parameters). A baseline made from another version of its
-scenario or controller file is refused: the comparison would not mean anything.
+file, the plant FMU's model identifier and parameters). A baseline made from another version
+of its scenario file is refused: the comparison would not mean anything. A baseline is
+compared on what it holds, and ``--update`` rewrites only what moved.
 
 Metrics are compared within the scenario's ``regression`` tolerances; traces within a band
 around the baseline's, with fmpy's ``validate_signal`` (the band of the Modelica CSV-compare
@@ -127,7 +128,9 @@ def make_baseline(prepared: Prepared, compiled: Compiled, result: RunResult) -> 
         "format": FORMAT,
         "scenario": {"name": scenario.name, "sha256": file_hash(scenario.path)},
         "controller": {"name": compiled.name, "sha256": file_hash(compiled.cfile.path)},
-        "plant": {"fmu": description.coSimulation.modelIdentifier, "guid": description.guid,
+        # the FMU by its model identifier and the values it ran with: its GUID changes with
+        # every rebuild of the model, also one that leaves the numbers alone, so it is not stored
+        "plant": {"fmu": description.coSimulation.modelIdentifier,
                   "parameters": scenario.plant or None,
                   "start": {k: _number(v) for k, v in sorted(prepared.start.items())}},
         "made_with": f"furuta-cosim {__version__}",
@@ -271,6 +274,9 @@ def check_versions(baseline: dict, path: Path, prepared: Prepared, compiled: Com
 def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list[Difference], int]:
     """What moved between ``baseline`` and ``result``, and how many things were compared.
 
+    A baseline is compared on what it holds: a metric or signal it lacks (one added since it
+    was made) is no difference (see :func:`unbaselined`); one it holds that the run lacks is.
+
     A baseline of a run that stopped early is compared on what is reproducible: that the run
     stops too, within ``regression.divergence.time`` of it, and its trace up to where the
     baseline's left the bound (which is where the baseline's rows end); not its metrics."""
@@ -298,15 +304,12 @@ def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list
         rtol, atol = tolerance.tolerance(name)
         if not _close(got, expected, rtol, atol):
             differences.append(Difference("metric", name, expected, got, f"rtol {rtol:g}, atol {atol:g}"))
-    if not stopped:
-        for name in sorted(set(result.metrics) - set(baseline["metrics"])):
-            differences.append(Difference("metric", name, "not in the baseline", result.metrics[name]))
     reference = baseline["trace"]
     if reference is None:
         return differences, checked
-    for name in result.trace.columns():
-        if name not in reference:
-            differences.append(Difference("trace", name, "in the baseline", "missing from it"))
+    for name in essential(result.trace):
+        if name not in reference:  # the run's core: no baseline without it is one of this run
+            differences.append(Difference("trace", name, "a stored signal", "missing from the baseline"))
     if len(reference["t"]) >= 2:
         t = result.trace.t
         for name, y_ref in reference.items():
@@ -328,6 +331,51 @@ def compare(baseline: dict, result: RunResult, scenario: Scenario) -> tuple[list
                     f"{len(outside)} of {len(reference['t'])} baseline "
                     f"points outside the band (dy {tolerance.dy:g}, dx {tolerance.dx})"))
     return differences, checked
+
+
+def essential(trace) -> list[str]:
+    """The signals every baseline of a run must hold: the input, the tracked output and the
+    outputs measured in its unit (a pendulum's angle beside the arm's). Others (estimates,
+    controller states, disturbances) may be added to the code later: open world."""
+    return ["u", trace.tracked] + [name for name in trace.watched() if name != trace.tracked]
+
+
+def unbaselined(baseline: dict, result: RunResult) -> list[str]:
+    """Notes for what the run has and the baseline does not hold (``regress --update`` adds it)."""
+    if baseline.get("failure") is not None:
+        return []
+    metrics = sorted(set(result.metrics) - set(baseline["metrics"]))
+    reference = baseline["trace"] or {}
+    signals = [name for name in result.trace.columns() if reference and name not in reference
+               and name not in essential(result.trace)]
+    return [f"not in the baseline (regress --update adds {'it' if len(names) == 1 else 'them'}): "
+            f"{kind} {', '.join(names)}" for kind, names in (("metric", metrics), ("signal", signals)) if names]
+
+
+def merged(document: dict, baseline: dict | None, differences: list[Difference], scenario: Scenario) -> dict:
+    """The baseline document to write on ``--update``: the new run's, except that every value
+    the old baseline holds and the run still reproduces (within the scenario's tolerances) is
+    kept as it was, so that an update changes only what changed (adding a metric adds its
+    line) and never rewrites what another machine rounds differently."""
+    if baseline is None or baseline["scenario"].get("sha256") != document["scenario"]["sha256"]:
+        return document
+    moved = {(d.kind, d.name) for d in differences}
+    if any(kind == "run" for kind, _ in moved):
+        return document
+    document = dict(document)
+    if document.get("failure") is not None:
+        # stopped as before, as close to when: the old record of it stands, trace and all
+        document["failure"], document["stopped_at"] = baseline["failure"], baseline["stopped_at"]
+    else:
+        document["metrics"] = {name: (_number(baseline["metrics"][name])
+                                      if name in baseline["metrics"] and ("metric", name) not in moved
+                                      else value) for name, value in document["metrics"].items()}
+    old, new = baseline["trace"], document["trace"]
+    if (old is not None and not any(kind == "trace" for kind, _ in moved) and list(old) == new["columns"]
+            and baseline["every"] == new["every"] and len(old["t"]) == len(new["rows"])):
+        document["trace"] = {**new, "rows": [[_number(v) for v in row] for row in np.column_stack(
+            [old[c] for c in new["columns"]]).tolist()] if len(new["rows"]) else []}
+    return document
 
 
 def _outside_band(t, y, t_ref, y_ref, dy: float, dx: int) -> list[int]:
@@ -503,10 +551,12 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
         case = Case(prepared.scenario.name, compiled.name, target, "pass", wall_time=result.wall_time)
         if baseline is not None:
             case.differences, case.checked = compare(baseline, result, prepared.scenario)
+            case.notes += unbaselined(baseline, result)
             if baseline["controller"].get("sha256") != file_hash(compiled.cfile.path):
                 case.notes.append(f"{compiled.cfile.source} changed since the baseline was made")
         if update:
-            document = make_baseline(prepared, compiled, result)
+            document = merged(make_baseline(prepared, compiled, result), baseline, case.differences,
+                              prepared.scenario)
             old = target.read_text() if target.exists() else None
             text = baseline_text(document)
             case.status = "new" if old is None else ("unchanged" if old == text else "updated")

@@ -284,3 +284,78 @@ def test_regress_passes_under_other_blas_kernels():
         assert len(cases) == 2 * len(SHIPPED) and {c["status"] for c in cases} == {"pass"}
         diverging = [c for c in cases if c["scenario"] == "noise-kalman" and c["controller"] == "bo-paper"]
         assert diverging and diverging[0]["checked"] >= 10, diverging
+
+
+def test_a_new_metric_fails_no_shipped_baseline_and_update_adds_only_its_lines(tmp_path, capsys, monkeypatch):
+    """Open-world baselines: a metric added to the code (here error.ITSE) is a note on every
+    baseline that lacks it, and --update adds its line to each of them, nothing else."""
+    import difflib
+
+    from furuta_cosim import metrics
+
+    copy = tmp_path / "scenarios"
+    shutil.copytree(paths.scenarios(), copy)
+    before = {p: p.read_text() for p in sorted((copy / "baselines").rglob("*.yaml"))}
+    integrals = metrics._integrals
+
+    def with_itse(t, e, dt):
+        return {**integrals(t, e, dt), "ITSE": float(__import__("numpy").sum(t * e ** 2) * dt)}
+
+    monkeypatch.setattr(metrics, "_integrals", with_itse)
+    monkeypatch.setattr(metrics, "ERROR_METRICS", metrics.ERROR_METRICS + ("ITSE",))
+    report = regress([str(p) for p in sorted(copy.glob("*.yaml"))])
+    assert not report.failed and len(report.cases) == 20
+    noted = [c for c in report.cases if any("metric error.ITSE" in n for n in c.notes)]
+    # every run to its end holds the new metric (a run that stopped early stores none)
+    finished = [p for p, text in before.items() if "failure: null" in text]
+    assert len(noted) == len(finished) >= 15
+    report = regress([str(p) for p in sorted(copy.glob("*.yaml"))], update=True)
+    added, removed = [], []
+    for path, text in before.items():
+        for line in difflib.unified_diff(text.splitlines(), path.read_text().splitlines(), lineterm="", n=0):
+            if line.startswith(("+++", "---", "@@")):
+                continue
+            (added if line.startswith("+") else removed).append((path.name, line))
+    assert removed == [] and len(added) == len(finished)
+    assert all(line.startswith("+  error.ITSE: ") for _, line in added), added[:3]
+    # and the updated baselines pass as they are
+    assert not regress([str(p) for p in sorted(copy.glob("*.yaml"))]).failed
+
+
+def test_update_leaves_a_baseline_that_still_passes_byte_for_byte(tmp_path, capsys):
+    """What the run reproduces within tolerance is kept as stored (here every value after a
+    perturbation far below the tolerances), so an update on another machine changes nothing."""
+    copy = tmp_path / "scenarios"
+    shutil.copytree(paths.scenarios(), copy)
+    target = copy / "baselines" / "paper-step" / "lqr-paper.yaml"
+    text = target.read_text()
+    nudged = text.replace("error.ISE: 0.5176796916", "error.ISE: 0.5176796917")
+    assert nudged != text
+    target.write_text(nudged)
+    report = regress([str(copy / "paper-step.yaml")], update=True)
+    assert {c.status for c in report.cases} == {"unchanged"}
+    assert target.read_text() == nudged
+
+
+def test_a_signal_the_baseline_lacks_is_a_note_unless_it_is_the_runs_core(tmp_path, capsys):
+    import yaml
+
+    from furuta_cosim.regression import baseline_text
+
+    scenario = _own_scenario(tmp_path)
+    assert run_cli(capsys, "regress", str(scenario), "--update")[0] == 0
+    target = tmp_path / "baselines" / "step" / "mine.yaml"
+    document = yaml.safe_load(target.read_text())
+    columns, rows = document["trace"]["columns"], document["trace"]["rows"]
+    for name, code in (("i", 0), ("u", 1)):
+        k = columns.index(name)
+        document["trace"] = {"every": document["trace"]["every"], "columns": columns[:k] + columns[k + 1:],
+                             "rows": [r[:k] + r[k + 1:] for r in rows]}
+        target.write_text(baseline_text(document))
+        got, out, err = run_cli(capsys, "regress", str(scenario), "--json")
+        case = json.loads(out)["cases"][0]
+        assert got == code, (name, out, err)
+        if code == 0:
+            assert "not in the baseline (regress --update adds it): signal i" in case["notes"]
+        else:
+            assert case["differences"][0]["name"] == "u" and "missing from the baseline" in case["differences"][0]["got"]
