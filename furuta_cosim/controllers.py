@@ -64,7 +64,18 @@ def controller_path(name: str | Path, beside: Path | None = None) -> Path:
 def load_controller(name: str | Path, beside: Path | None = None) -> ControllerFile:
     """Read and validate a controller file; every problem is reported at once.
 
-    A relative file path is taken beside ``beside`` (the folder of the scenario naming it)."""
+    Parameters
+    ----------
+    name : str or path
+        A shipped controller's name (``lqr-paper``) or a file.
+    beside : path, optional
+        The folder of the file that names it, where a relative path or a name is looked up
+        first.
+
+    Returns
+    -------
+    ControllerFile
+        The controller and its file's metadata (model, prefilter, provenance)."""
     path = controller_path(name, beside)
     data = load_yaml(path)
     check = Checker(path)

@@ -466,16 +466,47 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             workers: int = 1, baselines: Path | None = None,
             junit: str | Path | None = None, output: str | Path | None = None,
             progress: Callable[[int, int], None] | None = None) -> Report:
-    """Run every controller of every scenario named and compare each with its baseline
-    (``update``: write the baselines instead, reporting what changed).
+    """Run every controller of every scenario named and compare each with its baseline.
 
-    ``fmu`` (with ``mapping``, a plant-mapping file, for another tool's FMU), ``plant`` (a
-    plant file or name) and ``overrides`` (FMU parameters) run the same scenarios on another
-    plant; they cannot be combined with ``update``. A scenario of another model than ``plant``,
-    or whose plant lacks a parameter of ``overrides``, is listed as not applicable (``n/a``). Bad input of any kind, a corrupt baseline or one made from another version of
-    its files among it, is a ConfigError raised before any baseline is written. ``junit``:
-    write the report as JUnit XML there; ``output``: a folder for ``regress.json`` and
-    ``regress.xml`` (both checked before anything runs).
+    A scenario of another model than ``plant``, or whose plant lacks a parameter of
+    ``overrides``, is listed as not applicable (``n/a``).
+
+    Parameters
+    ----------
+    names : sequence of str or path, optional
+        Scenario files, names or folders of scenario files; default every shipped scenario.
+    update : bool
+        Write the baselines instead (only what moved), reporting what changed. Cannot be
+        combined with ``fmu``, ``mapping``, ``plant`` or ``overrides``.
+    fmu : path, optional
+        Run the scenarios on this FMU (another tool's, with ``mapping``).
+    mapping : path, optional
+        A plant-mapping file for ``fmu``.
+    overrides : dict, optional
+        FMU parameters set on every run (``--params``).
+    plant : str or path, optional
+        Run the scenarios on this plant (a name or file) instead of their own.
+    workers : int
+        Local processes for the runs.
+    baselines : path, optional
+        The folder of the baselines, instead of ``baselines/`` beside each scenario.
+    junit : path, optional
+        Also write the report as JUnit XML there.
+    output : path, optional
+        A folder for ``regress.json`` and ``regress.xml``.
+    progress : callable, optional
+        ``progress(done, total)`` after every run.
+
+    Returns
+    -------
+    Report
+        Its ``cases``: one per scenario and controller, with status and what moved.
+
+    Raises
+    ------
+    ConfigError
+        For bad input of any kind, or a corrupt baseline or one of another version of its
+        scenario, before any baseline is written.
     """
     import time
 

@@ -2,7 +2,7 @@
 
 Each printed number and claim of Solis & Thomas (2021) becomes a row: what the paper says,
 what the project computes, and a verdict: ``holds``, ``holds under a reading`` (a reading of
-docs/paper-readings.md, named in the row), or ``does not hold``. The runs behind the rows
+docs/pages/paper-readings.md, named in the row), or ``does not hold``. The runs behind the rows
 (scenarios, a tuning) are kept under the output folder, with the figures the paper's PDF
 left empty. Written as ``reproduction.md`` and ``reproduction.html`` (self-contained).
 """
@@ -22,7 +22,7 @@ from furuta_cosim.documents import dumps
 from furuta_cosim.files import output_folder, write_text
 
 BUDGETS = {"quick": 30, "full": 150}
-READINGS = "docs/paper-readings.md"
+READINGS = "docs/pages/paper-readings.md"
 PRINTED_K = [-0.31, -5.26, 70.74, 8.92, 0.17]
 
 
@@ -36,7 +36,7 @@ class Claim:
     ours: str
     rule: str               # the stated rule, applied to the numbers in ``ours``
     passed: bool
-    reading: str = ""       # the reading of docs/paper-readings.md the rule is checked under
+    reading: str = ""       # the reading of docs/pages/paper-readings.md the rule is checked under
     note: str = ""
 
     @property
@@ -357,7 +357,24 @@ def _tuned(spec, folder: Path, calls: int, seed: int, workers: int) -> dict:
 
 def reproduce(output: str | Path, *, budget: str = "quick", workers: int = 1,
               log: Callable[[str], None] = lambda line: None) -> dict:
-    """Run the whole reproduction into ``output``; return ``{"claims": [...], ...}``."""
+    """Check the paper's claims one by one and write the reproduction into ``output``.
+
+    Parameters
+    ----------
+    output : path
+        The folder for ``reproduce.md``, ``reproduce.json``, its HTML page and figures.
+    budget : str
+        ``"quick"`` (minutes) or ``"full"`` (the paper's budgets).
+    workers : int
+        Local processes for the tuning claims.
+    log : callable
+        Takes a line per claim as it is checked.
+
+    Returns
+    -------
+    dict
+        ``{"claims": [...], ...}``: each claim with our value and a verdict.
+    """
     from furuta_cosim.fmu.exporter import build_fmu
     from furuta_cosim.report.html import figure, markdown_to_html, page
     from furuta_cosim.scenario import load_scenario

@@ -205,7 +205,22 @@ def scenario_path(name: str | Path, beside: Path | None = None) -> Path:
 
 
 def load_scenario(name: str | Path) -> Scenario:
-    """Read and validate a scenario file (see the README for every key)."""
+    """Read and validate a scenario file (the Scenarios page lists every key).
+
+    Parameters
+    ----------
+    name : str or path
+        A shipped scenario's name (``paper-step``) or a file.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and key of every problem at once.
+    """
     path = scenario_path(name)
     data = load_yaml(path)
     check = Checker(path)

@@ -72,12 +72,33 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
                       every: int = 1, traces: bool = True,
                       progress: Callable[[str, int, int], None] | None = None,
                       log: Callable[[str], None] = lambda line: None) -> tuple[dict, dict]:
-    """Run the scenario's controllers (or ``controllers``) and write their files to ``output``.
+    """Run the scenario's controllers and write their files to ``output``.
 
-    Returns ``(document, results)``: the ``metrics.json`` document and ``{name: RunResult}``.
-    Each trace is written as soon as its run ends, so nothing is lost if a later run fails;
-    ``every`` thins the written traces (metrics always use every sample), ``traces=False``
-    writes none.
+    Each trace is written as soon as its run ends, so nothing is lost if a later run fails.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        From :func:`furuta_cosim.scenario.load_scenario`.
+    output : path
+        The folder for the traces (CSV), ``metrics.json`` and the figures.
+    controllers : sequence, optional
+        Controller names or files to run instead of the scenario's own.
+    fmu : path, optional
+        Run on this FMU instead of the scenario's plant.
+    every : int
+        Write every ``every``-th sample of the traces (metrics always use every sample).
+    traces : bool
+        Write the traces at all.
+    progress : callable, optional
+        ``progress(controller, step, steps)`` while a run goes.
+    log : callable
+        Takes a line per finished run.
+
+    Returns
+    -------
+    tuple
+        ``(document, results)``: the ``metrics.json`` document and ``{name: RunResult}``.
     """
     from furuta_cosim.report.figures import plot_runs
 

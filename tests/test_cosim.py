@@ -61,7 +61,7 @@ def test_paper_step_lqr_on_the_calibrated_plant():
     assert lqr["theta1.SettlingTime"] < 1.5
     assert lqr["u.peak_abs"] == pytest.approx(7.0, abs=0.5)
     assert traces["lqr-paper"].t[-1] == pytest.approx(10.0 - 0.002)
-    # docs/paper-readings.md: on the calibrated friction the BO controller does not recover
+    # docs/pages/paper-readings.md: on the calibrated friction the BO controller does not recover
     assert metrics["bo-paper"]["theta1.SettlingTime"] == np.inf
     assert metrics["bo-paper"]["theta1.max_abs"] > 0.3
 

@@ -136,9 +136,10 @@ def test_the_readme_examples_are_files_that_load(tmp_path):
 
     from furuta_cosim.identify.spec import load_identify_spec
 
-    text = (ROOT / "README.md").read_text()
-    section = text.split("### Your own rig", 1)[1].split("\n### ", 1)[0]
-    experiment, spec = re.findall(r"```yaml\n(.*?)```", section, re.S)
+    from helpers import page, section
+
+    text = section(page("rig.md"), "Your own rig: measured logs, replay, identify")
+    experiment, spec = re.findall(r"```yaml\n(.*?)```", text, re.S)
     rigs = tmp_path / "rigs" / "qube-servo-3"
     shutil.copytree(RIG, rigs)
     (rigs / "motor-7V.yaml").write_text(experiment)

@@ -1,6 +1,6 @@
 """Accuracy of the FMU against an independent integration of the paper's equations.
 
-The oracle below is written from the paper (Sec. III, with the readings of docs/paper-readings.md §1):
+The oracle below is written from the paper (Sec. III, with the readings of docs/pages/paper-readings.md §1):
 the Euler-Lagrange form M1(q) q'' + M2(q, q') q' + M3(q) = T with the motor's electrical
 equation, solved by scipy's Radau at rtol 1e-11. It shares no code with the C model.
 """

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import page, python_blocks
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -61,18 +62,21 @@ def test_main_job_runs_from_a_clean_clone_in_a_new_venv(tmp_path):
     assert len((run / "history.jsonl").read_text().splitlines()) == 150
 
 
-@pytest.mark.parametrize("index", range(len(re.findall(r"```python\n", (ROOT / "README.md").read_text()))))
-def test_readme_python_examples_run_as_written(index, tmp_path, monkeypatch):
-    block = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)[index]
+PYTHON = python_blocks()
+
+
+@pytest.mark.parametrize("index", range(len(PYTHON)))
+def test_the_docs_python_examples_run_as_written(index, tmp_path, monkeypatch):
+    where, block = PYTHON[index]
     monkeypatch.chdir(tmp_path)
-    exec(compile(block, f"README.md python block {index}", "exec"), {"__name__": "readme"})  # noqa: S102
+    exec(compile(block, where, "exec"), {"__name__": "readme"})  # noqa: S102
 
 
 def test_the_readme_every_key_tuning_spec_runs(tmp_path):
     from furuta_cosim.tuning.run import tune
     from furuta_cosim.tuning.spec import load_spec
 
-    text = (ROOT / "README.md").read_text()
+    text = page("tuning.md")
     section = text[text.index("Every key of a tuning spec"):]
     path = tmp_path / "my-tuning.yaml"
     path.write_text(re.search(r"```yaml\n(.*?)```", section, re.S).group(1))
@@ -80,17 +84,14 @@ def test_the_readme_every_key_tuning_spec_runs(tmp_path):
     assert document["evaluations"] == 2 and document["baselines"]["lqr-paper"]["feasible"]
 
 
-PYTHON = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
-
-
 @pytest.mark.parametrize("index", range(len(PYTHON)))
-def test_readme_python_examples_paste_into_the_interactive_prompt(index):
+def test_the_docs_python_examples_paste_into_the_interactive_prompt(index):
     """Pasted line by line at >>> (where a block ends only at a blank line), no example is a
     SyntaxError."""
     import codeop
 
     pending = []
-    for line in PYTHON[index].splitlines() + [""]:
+    for line in PYTHON[index][1].splitlines() + [""]:
         pending.append(line)
         if codeop.compile_command("\n".join(pending), "<stdin>", "single") is not None:
             pending = []

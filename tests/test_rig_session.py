@@ -15,8 +15,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _section():
-    text = (ROOT / "README.md").read_text()
-    section = text.split("### Tuning for your own rig", 1)[1].split("\n### ", 1)[0]
+    from helpers import page
+    from helpers import section as under
+
+    section = under(page("rig.md"), "Tuning for your own rig")
     commands = re.search(r"```sh\n(.*?)```", section, re.S).group(1).strip().splitlines()
     scenario = re.search(r"```yaml\n(.*?)```", section, re.S).group(1)
     return commands, scenario

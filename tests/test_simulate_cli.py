@@ -73,7 +73,9 @@ def test_a_diverging_run_does_not_flatten_the_others_in_the_figure():
 
 
 def test_the_readme_every_key_example_runs_cleanly(tmp_path, capsys):
-    text = (ROOT / "README.md").read_text()
+    from helpers import page
+
+    text = page("scenarios.md")
     section = text[text.index("Every key of a scenario file"):]
     example = re.search(r"```yaml\n(.*?)```", section, re.S).group(1)
     path = tmp_path / "my-scenario.yaml"

@@ -1,4 +1,4 @@
-"""Tuning measured as the README reports it: each optimizer over 10 seeds at the same budget,
+"""Tuning measured as the docs report it (Tuning and Performance pages): each optimizer over 10 seeds at the same budget,
 beside the LQR scored alike and the best value known, in one run.
 
     python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--first-seed 0] [--calls 150]

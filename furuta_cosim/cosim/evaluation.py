@@ -127,9 +127,23 @@ def evaluate(prepared: Prepared, session, controller, *,
 
 def runs(prepared: Prepared, controllers: Sequence | None = None, *,
          progress: Callable[[str, int, int], None] | None = None) -> Iterator[RunResult]:
-    """Each controller (default: the scenario's; names, files or compiled controllers) in turn
-    on one FMU instance: a result as soon as its run ends, so a caller can save it before the
-    next run starts."""
+    """Each controller in turn on one FMU instance: a result as soon as its run ends, so a
+    caller can save it before the next run starts.
+
+    Parameters
+    ----------
+    prepared : Prepared
+        From :func:`furuta_cosim.cosim.master.prepare`.
+    controllers : sequence, optional
+        Names, files or compiled controllers; default the scenario's.
+    progress : callable, optional
+        ``progress(controller, step, steps)`` while a run goes.
+
+    Yields
+    ------
+    RunResult
+        The trace, metrics and requirement verdicts of one run.
+    """
     from furuta_cosim.fmu.session import PlantSession
 
     compiled = scenario_controllers(prepared, controllers)

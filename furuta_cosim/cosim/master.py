@@ -122,7 +122,17 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     overrides : mapping, optional
         FMU parameters set on top of the scenario's ``plant.overrides`` (plant variants).
 
-    Raises ConfigError naming the scenario file and key, or FmuError for an unusable FMU.
+    Returns
+    -------
+    Prepared
+        What every run of the scenario shares: the FMU, its view, timing and signals.
+
+    Raises
+    ------
+    ConfigError
+        Naming the scenario file and key.
+    FmuError
+        For an unusable FMU.
     """
     problems: list[str] = []
 

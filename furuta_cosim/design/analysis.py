@@ -172,8 +172,23 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
             margin: float = MARGIN) -> Analysis:
     """Analyse the loop of ``model`` and ``controller`` (see the module docstring).
 
-    ``sampling_period`` adds the sampled-data loop of a continuous controller;
-    ``tracked_output`` adds its prefilter.
+    Parameters
+    ----------
+    model : LinearModel
+        The plant's linear model.
+    controller : GeneralizedController
+        Static or dynamic, continuous or discrete.
+    sampling_period : float, optional
+        Adds the sampled-data loop of a continuous controller run at this period.
+    tracked_output : str, optional
+        Adds the prefilter and tracking bandwidth for this output.
+    margin : float
+        The stability margin: how far inside the stability region the poles must be.
+
+    Returns
+    -------
+    Analysis
+        Poles, stability, dominant mode and, with ``tracked_output``, the prefilter.
     """
     Abar, _ = augmented(model, controller)
     discrete = controller.discrete

@@ -28,7 +28,7 @@ def lqr(model: LinearModel, Q=None, R=None, period: float | None = None) -> Gene
         Input weight; default the paper's 10 for 5 states, else 1.
     period : float, optional
         Design a discrete LQR (dlqr) on the zero-order-hold discretization at this period.
-        The paper's printed K is dlqr at 2 ms (docs/paper-readings.md §2). Ignored for discrete models.
+        The paper's printed K is dlqr at 2 ms (docs/pages/paper-readings.md §2). Ignored for discrete models.
 
     Returns
     -------

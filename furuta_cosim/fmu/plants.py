@@ -76,8 +76,28 @@ def _default_set(model_py: Path) -> str | None:
 
 def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = (),
                beside: Path | None = None) -> PlantSet:
-    """Read and validate a plant file; raises ConfigError listing every problem. ``beside``:
-    the folder of the file that names it, where a relative path or a name is looked up first."""
+    """Read and validate a plant file.
+
+    Parameters
+    ----------
+    name : str or path
+        A plant's name (``paper-calibrated``, ``qube-servo-3``), a model's name (its default
+        set) or a file.
+    also : tuple of str
+        What the caller accepts besides, listed in the error for an unknown name.
+    beside : path, optional
+        The folder of the file that names it, where a relative path or a name is looked up
+        first.
+
+    Returns
+    -------
+    PlantSet
+
+    Raises
+    ------
+    ConfigError
+        Listing every problem of the file (and of the files it extends).
+    """
     return _load(plant_path(name, also, beside), seen=())
 
 

@@ -25,8 +25,23 @@ from furuta_cosim.identify.spec import load_identify_spec
 
 def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None) -> dict:
     """Each experiment's logged inputs run open loop on ``target``: per output its RMS error
-    (SI units) and, where it oscillates, its period; with ``output``, an overlay and a residual
-    figure per experiment (PNG and SVG) and ``replay.json`` there."""
+    (SI units) and, where it oscillates, its period.
+
+    Parameters
+    ----------
+    experiments : sequence of str or path
+        Experiment files (their logs, inputs and outputs).
+    target : Target
+        The plant to run them on, from :func:`furuta_cosim.identify.replay.target_for`.
+    output : path, optional
+        A folder for an overlay and a residual figure per experiment (PNG and SVG) and
+        ``replay.json``.
+
+    Returns
+    -------
+    dict
+        Per experiment and output: the RMS error and, where it oscillates, the period.
+    """
     loaded = [load_experiment(path) for path in experiments]
     check_names(target, loaded)
     out = output_folder(output) if output is not None else None
@@ -63,7 +78,31 @@ def _figures(out: Path, experiment: Experiment, simulated: dict) -> list[Path]:
 def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, dask: str | None = None,
              fmi_version: str = "2.0", progress=lambda stage, n, cost: None,
              log: Callable[[str], None] = lambda line: None) -> dict:
-    """Fit the spec and write its run directory; returns the fit.json document."""
+    """Fit the plant parameters of an identify spec to its experiments and write the run
+    directory: ``plant.yaml`` (the fitted plant), ``fit.json``, ``report.html`` and figures.
+
+    Parameters
+    ----------
+    spec_name : str or path
+        An identify spec: a shipped name (``qube-servo-3``) or a file.
+    output : path
+        The run directory (created; an existing non-empty one is refused).
+    workers : int
+        Local processes that run the simulations of the Jacobian.
+    dask : str, optional
+        A Dask scheduler address, or ``"local"``, instead of local processes.
+    fmi_version : str
+        The FMI version of the plant FMU the fit simulates: ``"2.0"`` or ``"3.0"``.
+    progress : callable
+        ``progress(stage, simulations, cost)``, called as the fit goes.
+    log : callable
+        Takes a line about the fit (its stages, pairs that are not separable).
+
+    Returns
+    -------
+    dict
+        The ``fit.json`` document: values, intervals, correlations, residuals.
+    """
     from furuta_cosim.identify.replay import target_for
 
     spec = load_identify_spec(spec_name)

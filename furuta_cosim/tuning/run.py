@@ -198,15 +198,48 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
          log: Callable[[str], None] | None = None) -> dict:
     """Run the spec's optimization into ``run_dir`` and return the summary document.
 
-    ``workers`` > 1 evaluates in local processes, ``dask`` (a scheduler address or ``local``)
-    on a Dask cluster; candidates are asked in synchronous batches of ``optimizer.batch``
-    (the initial design at once), so that workers change the speed and never the history.
-    ``resume`` continues a run directory after a crash: the history is replayed into the
-    optimizer and the run goes on until it holds exactly ``n_calls`` evaluations.
-    ``progress(done, total, best, feasible)`` is called after every batch; ``log`` takes a
-    line about the run (a history line dropped after a crash). One run per directory at a
-    time (a lock); a Dask scheduler lost, or no worker for a minute, raises RunStopped with
-    the history kept for --resume."""
+    Candidates are asked in synchronous batches of ``optimizer.batch`` (the initial design at
+    once), so that workers change the speed and never the history. One run per directory at
+    a time (a lock).
+
+    Parameters
+    ----------
+    spec : TuningSpec
+        From :func:`furuta_cosim.tuning.spec.load_spec`.
+    run_dir : path
+        The run directory: ``history.jsonl``, ``summary.md``, ``summary.json``, ``best.yaml``
+        and the figures. A new one must not exist (or be empty) unless ``resume``.
+    method : str, optional
+        The optimizer (``bo``, ``random``, ``de``, ...); default the spec's ``optimizer.method``.
+    n_calls : int, optional
+        Evaluations in all; default the spec's ``optimizer.n_calls``.
+    seed : int, optional
+        The optimizer's seed; default the spec's ``optimizer.seed``.
+    workers : int
+        Local processes that evaluate candidates (1: in this process).
+    dask : str, optional
+        A Dask scheduler address, or ``"local"``, to evaluate on a Dask cluster instead.
+    resume : bool
+        Continue ``run_dir`` after a crash: its history is replayed into the optimizer and the
+        run goes on until it holds exactly ``n_calls`` evaluations.
+    progress : callable, optional
+        ``progress(done, total, best, feasible)``, called after every batch.
+    log : callable, optional
+        Takes a line about the run (a baseline left out of the initial design, a history line
+        dropped after a crash).
+
+    Returns
+    -------
+    dict
+        The summary document (what ``summary.json`` holds).
+
+    Raises
+    ------
+    ConfigError
+        For a bad option or run directory, before anything is written.
+    RunStopped
+        When a Dask scheduler is lost or no worker comes for a minute; the history is kept.
+    """
     from furuta_cosim.cosim.worker import check_workers
     from furuta_cosim.tuning.spec import MAX_CALLS, MAX_SEED
 
@@ -638,7 +671,7 @@ def _described(objective) -> str:
     """The objective in words, after its type."""
     if objective.type == "spectral":
         return (" (the paper's max |Re eig(Abar)| as stated: it measures the fastest mode, not the "
-                "slowest, so it rewards poles near the imaginary axis; docs/paper-readings.md §3)")
+                "slowest, so it rewards poles near the imaginary axis; docs/pages/paper-readings.md §3)")
 
     def terms(criterion) -> str:
         return " + ".join(f"{t.weight:g} {t.metric}" + (f" / {Path(t.relative_to).stem}'s"

@@ -136,13 +136,29 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
               from_fit: tuple[str | Path, int, int] | None = None) -> TuningSpec:
     """Read and validate a tuning spec; the model named is loaded to size the matrices.
 
-    ``plant`` (``tune --plant``; else the spec's ``plant`` key): every scenario runs on that
-    plant, the controller is designed on its linearization (``derived:PLANT``, whatever
-    ``controller.model`` says), and every LQR the spec names (baselines, relative terms,
-    constraints, initial points) is designed again for it with its own recipe (the same Q, R
-    and period), so that the spec compares with the LQR of the plant it tunes for.
-    ``from_fit`` (``tune --from-fit FIT --samples N --variants-seed S``): the spec's variants
-    are drawn from that identify run instead, as ``variants: {from_fit: ...}`` does."""
+    Parameters
+    ----------
+    name : str or path
+        A shipped spec's name (``effort``) or a file.
+    plant : str or path, optional
+        Tune for this plant (a name or file) instead of the spec's ``plant`` key: every
+        scenario runs on it, the controller is designed on its linearization
+        (``derived:PLANT``, whatever ``controller.model`` says), and every LQR the spec names
+        (baselines, relative terms, constraints, initial points) is designed again for it with
+        its own recipe (the same Q, R and period).
+    from_fit : tuple, optional
+        ``(fit_json, samples, seed)``: draw the spec's plant variants from that identify run,
+        as ``variants: {from_fit: ...}`` does.
+
+    Returns
+    -------
+    TuningSpec
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and key of every problem.
+    """
     from furuta_cosim.models import load_model
 
     path = spec_path(name)

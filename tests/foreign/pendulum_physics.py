@@ -1,5 +1,5 @@
 """The Furuta pendulum written from the paper's equations (Solis & Thomas 2021, Sec. III, with
-the project's readings in docs/paper-readings.md), sharing no code with fmu_src/furuta: the
+the project's readings in docs/pages/paper-readings.md), sharing no code with fmu_src/furuta: the
 physics of the foreign test FMUs (pendulum_fmu.py for pythonfmu, pendulum3_fmu.py for
 pythonfmu3), which ship this file as a project file.
 

@@ -1,0 +1,76 @@
+"""The docs site: it builds with warnings as errors (links and anchors checked), its command
+reference is the parser's own help, the README stays a front page, and every function of the
+API reference documents each of its parameters."""
+
+import importlib
+import inspect
+import re
+import subprocess
+import sys
+
+import pytest
+from helpers import PAGES, ROOT
+
+API = re.findall(r"^::: (\S+)$", (PAGES / "api.md").read_text(), re.M)
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    out = tmp_path_factory.mktemp("site")
+    result = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
+                             str(ROOT / "docs" / "mkdocs.yml"), "-d", str(out)],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-4000:]
+    return out
+
+
+@pytest.mark.slow
+def test_the_site_builds_strict_and_its_command_reference_is_the_parsers_help(site):
+    from furuta_cosim.cli import build_parser
+
+    html = (site / "commands" / "index.html").read_text()
+    parser = build_parser()
+    for action in parser._actions:
+        for name in getattr(action, "choices", None) or {}:
+            if isinstance(action.choices, dict):
+                assert f"furuta-cosim {name}" in html, name
+    # an option of a command, as --help prints it
+    assert "--from-fit" in html and "--variants-seed" in html
+    assert (site / "api" / "index.html").read_text().count("furuta_cosim.tuning.run.tune") >= 1
+    # the set-up commands come from the README, written once
+    assert "python3 -m pip install -e . &amp;&amp; furuta-cosim tune effort" in (site / "setup" / "index.html").read_text()
+
+
+def test_the_readme_is_a_front_page():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 200
+    quick = text.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    assert "pip install" in quick and "furuta-cosim tune effort" in quick
+    for link in re.findall(r"\]\((docs/[^)#]+)", text):
+        assert (ROOT / link).is_file(), link
+
+
+def _documented(docstring: str) -> set[str]:
+    section = re.search(r"Parameters\n\s*-+\n(.*?)(?:\n\s*\n\s*[A-Z][a-z]+\n\s*-+\n|\Z)", docstring, re.S)
+    return set(re.findall(r"^\s{0,8}(\w+)\s*(?::|$)", section.group(1), re.M)) if section else set()
+
+
+@pytest.mark.parametrize("name", API)
+def test_every_parameter_of_the_api_is_documented(name):
+    module, function = name.rsplit(".", 1)
+    obj = getattr(importlib.import_module(module), function)
+    parameters = [p for p in inspect.signature(obj).parameters if p not in ("self", "cls")]
+    missing = [p for p in parameters if p not in _documented(inspect.getdoc(obj) or "")]
+    assert not missing, f"{name}: undocumented parameter(s) {missing}"
+
+
+def test_the_parameter_check_finds_an_undocumented_one():
+    def f(a, b):
+        """Do.
+
+        Parameters
+        ----------
+        a : int
+            A.
+        """
+    assert _documented(inspect.getdoc(f)) == {"a"}

@@ -1,0 +1,88 @@
+"""MkDocs hooks of the docs site (``docs/mkdocs.yml``): the pages that are generated from the
+code, so that they cannot drift from it.
+
+- ``<!-- commands -->`` becomes the reference of every command, from the CLI's own parser
+  (the text ``--help`` prints).
+- ``<!-- readme: HEADING -->`` becomes that section of the README (the set-up commands are
+  written once, in the README).
+- ``<!-- benchmark: NAME -->`` becomes the recorded output of a benchmark,
+  ``docs/benchmarks/NAME.txt``, with the command and commit it came from, and a warning when
+  the code it measures changed after that commit (a stale figure shows as stale).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+_MARK = re.compile(r"<!-- (commands|readme|benchmark)(?:: ([^>]+?))? -->")
+
+
+def on_page_markdown(markdown: str, page, config, files) -> str:
+    return _MARK.sub(lambda m: _expand(m.group(1), (m.group(2) or "").strip()), markdown)
+
+
+def _expand(kind: str, argument: str) -> str:
+    if kind == "commands":
+        return commands_reference()
+    if kind == "readme":
+        return readme_section(argument)
+    return benchmark(argument)
+
+
+def commands_reference() -> str:
+    """Every command's usage and options, as its ``--help`` prints them."""
+    from furuta_cosim.cli import build_parser
+
+    parser = build_parser()
+    parts = ["```text", _plain(parser.format_help()), "```", ""]
+    for name, sub in _subcommands(parser):
+        nested = list(_subcommands(sub))
+        for full, command in ([(f"{name} {n}", c) for n, c in nested] if nested else [(name, sub)]):
+            parts += [f"## furuta-cosim {full}", "", "```text", _plain(command.format_help()), "```", ""]
+    return "\n".join(parts)
+
+
+def _subcommands(parser: argparse.ArgumentParser):
+    for action in parser._actions:  # argparse keeps its subparsers here; no public accessor
+        if isinstance(action, argparse._SubParsersAction):
+            yield from action.choices.items()
+
+
+def _plain(text: str) -> str:
+    return text.replace("```", "'''").rstrip()
+
+
+def readme_section(heading: str) -> str:
+    """The README's ``## HEADING`` section, without its heading."""
+    text = (ROOT / "README.md").read_text()
+    match = re.search(rf"^## {re.escape(heading)}\n(.*?)(?=^## |\Z)", text, re.S | re.M)
+    if not match:
+        raise ValueError(f"README.md has no section '## {heading}'")
+    return match.group(1).strip() + "\n"
+
+
+def benchmark(name: str) -> str:
+    """A recorded benchmark output: its header lines ``command:``, ``commit:``, ``measures:``
+    (the paths whose change makes the figures stale), then the output as printed."""
+    path = ROOT / "docs" / "benchmarks" / f"{name}.txt"
+    head, _, body = path.read_text().partition("\n\n")
+    fields = dict(line.split(": ", 1) for line in head.splitlines())
+    command, commit = fields["command"], fields["commit"]
+    stale = _changed_since(commit, fields.get("measures", "furuta_cosim fmu_src").split())
+    note = (f"!!! warning \"Stale\"\n    The code these figures measure changed in {stale} commit(s) "
+            f"after {commit}; run `{command}` again.\n\n" if stale else "")
+    return (f"{note}Recorded at commit `{commit}` by `{command}`:\n\n```text\n{body.rstrip()}\n```\n")
+
+
+def _changed_since(commit: str, paths: list[str]) -> int:
+    """How many commits after ``commit`` touched ``paths`` (0 outside a git checkout)."""
+    try:
+        out = subprocess.run(["git", "rev-list", "--count", f"{commit}..HEAD", "--", *paths], cwd=ROOT,
+                             capture_output=True, text=True, check=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        return 0
+    return int(out.strip() or 0)
