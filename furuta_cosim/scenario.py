@@ -20,15 +20,8 @@ from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
 from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.metrics import checked
+from furuta_cosim.references import KINDS, PLAIN
 
-SIGNAL_KEYS = {
-    "step": ({"time", "amplitude"}, {"initial"}),
-    "sine": ({"amplitude", "period"}, {"phase", "offset", "start"}),
-    "square": ({"amplitude", "period"}, {"duty", "offset", "start"}),
-    "ramp": ({"slope"}, {"start", "initial"}),
-    "constant": ({"value"}, set()),
-    "table": ({"points"}, {"interpolation"}),
-}
 METRIC_BOUNDS = ("max", "min")
 
 
@@ -40,27 +33,7 @@ class Signal:
     params: Mapping[str, object]
 
     def __call__(self, t: np.ndarray) -> np.ndarray:
-        p = self.params
-        if self.kind == "constant":
-            return np.full_like(t, p["value"])
-        if self.kind == "step":
-            return np.where(t >= p["time"] - 1e-12, p["amplitude"], p.get("initial", 0.0))
-        start = p.get("start", 0.0)
-        active = t >= start - 1e-12
-        if self.kind == "sine":
-            phase = 2 * math.pi * (t - start) / p["period"] + p.get("phase", 0.0)
-            return np.where(active, p.get("offset", 0.0) + p["amplitude"] * np.sin(phase), 0.0)
-        if self.kind == "square":
-            fraction = np.mod((t - start) / p["period"] + 1e-12, 1.0)
-            level = np.where(fraction < p.get("duty", 0.5), p["amplitude"], -p["amplitude"])
-            return np.where(active, p.get("offset", 0.0) + level, 0.0)
-        if self.kind == "ramp":
-            return p.get("initial", 0.0) + np.where(active, p["slope"] * (t - start), 0.0)
-        times, values = (np.array(c) for c in zip(*p["points"]))
-        if p.get("interpolation", "hold") == "linear":
-            return np.interp(t, times, values)
-        index = np.searchsorted(times, t + 1e-12, side="right") - 1
-        return np.where(index >= 0, values[np.clip(index, 0, None)], 0.0)
+        return KINDS[self.kind].value(self.params, t)
 
 
 @dataclass(frozen=True)
@@ -77,7 +50,7 @@ class Reference:
     @property
     def settles(self) -> bool:
         """True when it ends constant (steps, tables, constants): step metrics apply."""
-        return all(s.kind in ("step", "constant", "table") for s in self.signals)
+        return all(KINDS[s.kind].settles for s in self.signals)
 
 
 @dataclass(frozen=True)
@@ -432,44 +405,30 @@ def _timing(check: Checker, value):
 
 def _signal(check: Checker, value, key: str) -> Signal | None:
     if not isinstance(value, dict) or "type" not in value:
-        check.fail(key, f"expected a mapping with a type ({', '.join(SIGNAL_KEYS)})")
+        check.fail(key, f"expected a mapping with a type ({', '.join(KINDS)})")
         return None
-    kind = check.string(value["type"], f"{key}.type", tuple(SIGNAL_KEYS))
-    if kind is None:
+    name = check.string(value["type"], f"{key}.type", tuple(KINDS))
+    if name is None:
         return None
-    required, optional = SIGNAL_KEYS[kind]
-    section = check.mapping(value, key, required=tuple(required) + ("type",), optional=tuple(optional))
+    kind = KINDS[name]
+    section = check.mapping(value, key, required=kind.required + ("type",), optional=kind.optional)
     if section is None:
         return None
     params = {}
-    for name in (required | optional) & set(section):
-        if name == "points":
-            pairs = section["points"]
-            if not (isinstance(pairs, list) and pairs and all(isinstance(p, list) for p in pairs)):
-                check.fail(f"{key}.points", "expected a list of [time, value] pairs")
-                continue
-            rows = check.matrix(pairs, f"{key}.points", cols=2)
-            if rows is None:
-                continue
-            times = [r[0] for r in rows]
-            if any(b <= a for a, b in zip(times, times[1:])):
-                check.fail(f"{key}.points", "times must increase")
-            params["points"] = tuple(tuple(r) for r in rows)
-        elif name == "interpolation":
-            params[name] = check.string(section[name], f"{key}.{name}", ("hold", "linear"))
-        else:
-            positive = name == "period"
-            minimum = 0.0 if name in ("time", "start") else None
+    for name in kind.required + kind.optional:
+        if name not in section:
+            continue
+        read = kind.read(check, section, key, name)
+        if read is PLAIN:
             # a reference is a physical signal: within +-1e12 like every matrix entry
-            number = check.number(section[name], f"{key}.{name}", positive=positive, minimum=minimum,
-                                  maximum=MAX_MAGNITUDE)
-            if number is not None and minimum is None and number < -MAX_MAGNITUDE:
-                check.fail(f"{key}.{name}", f"must be >= {-MAX_MAGNITUDE:g}, got {number:g}")
-                number = None
-            if name == "duty" and number is not None and not 0 < number < 1:
-                check.fail(f"{key}.duty", f"must be between 0 and 1, got {number}")
-            params[name] = number
-    return Signal(kind, Frozen(params))
+            minimum = 0.0 if name in kind.times else None
+            read = check.number(section[name], f"{key}.{name}", positive=name in kind.positive,
+                                minimum=minimum, maximum=MAX_MAGNITUDE)
+            if read is not None and minimum is None and read < -MAX_MAGNITUDE:
+                check.fail(f"{key}.{name}", f"must be >= {-MAX_MAGNITUDE:g}, got {read:g}")
+                read = None
+        params[name] = read
+    return Signal(kind.name, Frozen(params))
 
 
 def _reference(check: Checker, value) -> Reference:

@@ -2,6 +2,8 @@
 
 import pytest
 
+from furuta_cosim.references import KINDS
+
 from furuta_cosim.cli import main
 
 from conftest import run_cli
@@ -35,7 +37,7 @@ CASES = {
     "nan-duration": (edit("duration: 0.1", "duration: .nan"), "timing.duration: must be finite, got nan"),
     "string-duration": (edit("duration: 0.1", "duration: ten"), "timing.duration: expected a number, got a string ('ten')"),
     "unknown-signal": (edit("type: constant, value: 0", "type: chirp, value: 0"),
-                       "reference.signal.type: expected one of step, sine, square, ramp, constant, table, got 'chirp'"),
+                       "reference.signal.type: expected one of " + ", ".join(KINDS) + ", got 'chirp'"),
     "zero-sine-period": (edit("type: constant, value: 0", "type: sine, amplitude: 1, period: 0"),
                          "reference.signal.period: must be > 0, got 0"),
     "step-without-amplitude": (edit("type: constant, value: 0", "type: step, time: 1"),

@@ -3,6 +3,7 @@ code, so that they cannot drift from it.
 
 - ``<!-- commands -->`` becomes the reference of every command, from the CLI's own parser
   (the text ``--help`` prints).
+- ``<!-- reference-kinds -->`` becomes the table of the registered reference kinds.
 - ``<!-- readme: HEADING -->`` becomes that section of the README (the set-up commands are
   written once, in the README).
 - ``<!-- benchmark: NAME -->`` becomes the recorded output of a benchmark,
@@ -18,7 +19,7 @@ import subprocess
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-_MARK = re.compile(r"<!-- (commands|readme|benchmark)(?:: ([^>]+?))? -->")
+_MARK = re.compile(r"<!-- (commands|readme|benchmark|reference-kinds)(?:: ([^>]+?))? -->")
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
@@ -30,6 +31,8 @@ def _expand(kind: str, argument: str) -> str:
         return commands_reference()
     if kind == "readme":
         return readme_section(argument)
+    if kind == "reference-kinds":
+        return reference_kinds()
     return benchmark(argument)
 
 
@@ -54,6 +57,17 @@ def _subcommands(parser: argparse.ArgumentParser):
 
 def _plain(text: str) -> str:
     return text.replace("```", "'''").rstrip()
+
+
+def reference_kinds() -> str:
+    """A table of the registered reference kinds, their keys and whether they settle."""
+    from furuta_cosim.references import KINDS
+
+    rows = ["| type | keys | optional | step metrics |", "| --- | --- | --- | --- |"]
+    for name, kind in KINDS.items():
+        rows.append(f"| `{name}` | {', '.join(kind.required)} | {', '.join(kind.optional) or '-'} | "
+                    f"{'yes' if kind.settles else 'no'} |")
+    return "\n".join(rows) + "\n"
 
 
 def readme_section(heading: str) -> str:
