@@ -7,6 +7,7 @@ Heavy modules are imported inside the handlers so that ``--help`` stays instant.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from furuta_cosim.documents import dumps
@@ -484,6 +485,7 @@ def cmd_list(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from furuta_cosim.defaults import PAPER_PERIOD
+    from furuta_cosim.tuning.methods import METHODS
 
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
@@ -566,8 +568,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("tune", help="tune a controller by Bayesian optimization over a spec")
     p.add_argument("spec", help="tuning spec file or name in scenarios/tuning (paper-spectral, ...)")
     p.add_argument("-o", "--output", help="run directory (default runs/<spec>); must not hold a run")
-    p.add_argument("--optimizer", choices=("bo", "random", "de"),
-                   help="bo (GP + EI), random, or de (scipy's differential evolution); default: the spec's")
+    p.add_argument("--optimizer", choices=tuple(METHODS),
+                   help="; ".join(f"{name}: {m.description}" for name, m in METHODS.items()) + "; default: the spec's")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; "
                                                "1 evaluates in this process)")
     p.add_argument("--dask", metavar="ADDRESS", help="evaluate on a Dask scheduler, or 'local' for a LocalCluster")
@@ -611,7 +613,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_regress)
 
     p = commands.add_parser("export-controller",
-                            help="build a controller as an FMI 2.0 co-simulation FMU and print its path")
+                            help="build a controller as an FMI 2.0 or 3.0 FMU and print its path")
     p.add_argument("controller", help="controller file or name in scenarios/controllers")
     p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
     p.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
@@ -674,6 +676,25 @@ def _resume_hint(args) -> str:
     return f"; '{command}' continues it" if command else ""
 
 
+# The library's errors name its functions' parameters (``n_calls: expected ...``, and
+# ```resume``` inside a sentence); the command line says its flags instead.
+FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method": "--optimizer",
+         "plant": "--plant", "fmu": "--fmu", "mapping": "--mapping", "every": "--every",
+         "period": "--period", "track": "--track", "Q": "--Q", "R": "--R", "workers": "--workers",
+         "dask": "--dask", "delay": "--delay", "fmi_version": "--fmi-version", "junit": "--junit",
+         "baselines": "--baselines", "update": "--update", "budget": "--budget",
+         "overrides": "--params", "run_dir": "-o", "output": "-o", "controllers": "--controller",
+         "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit"}
+_LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
+_QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
+
+
+def as_flags(line: str) -> str:
+    """A library error line as the command line's: parameter names become flags."""
+    line = _LEADING.sub(lambda m: FLAGS[m.group(1)], line)
+    return _QUOTED.sub(lambda m: FLAGS[m.group(1)], line)
+
+
 def main(argv: list[str] | None = None) -> int:
     import signal
 
@@ -696,13 +717,13 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_PIPE
     except (ConfigError, DesignError) as error:
         for line in str(error).splitlines():
-            print(f"error: {line}", file=sys.stderr)
+            print(f"error: {as_flags(line)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except FmuError as error:
-        print(f"error: {error}", file=sys.stderr)
+        print(f"error: {as_flags(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except RunStopped as error:
-        print(f"stopped: {error}", file=sys.stderr)
+        print(f"stopped: {as_flags(str(error))}", file=sys.stderr)
         return EXIT_STOPPED
     except OSError as error:
         # a full disk, a folder that went away: one line; the atomic writers left nothing

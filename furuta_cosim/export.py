@@ -52,7 +52,7 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
     if period is not None:
         from furuta_cosim.config import Checker
 
-        check = Checker("--period")
+        check = Checker("period")
         period = check.period(period, "")
         check.done()
     period = period or cfile.period or linear.period
@@ -98,7 +98,7 @@ def export_controller(name: str | Path, output: str | Path | None = None, *,
     from furuta_cosim.fmu.exporter import build_fmu
 
     if delay not in (0, 1):
-        raise ConfigError([f"--delay: expected 0 or 1 control samples, got {delay}"])
+        raise ConfigError([f"delay: expected 0 or 1 control samples, got {delay}"])
     return build_fmu(controller_plant(name, period=period, model=model, delay=delay),
                      output=output, log=log, fmi_version=fmi_version)
 

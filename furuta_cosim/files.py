@@ -49,7 +49,7 @@ def copy(source: str | Path, path: str | Path) -> Path:
     return Path(path)
 
 
-def output_file(path: str | Path, flag: str = "-o") -> Path:
+def output_file(path: str | Path, flag: str = "output") -> Path:
     """Check before any work that ``path`` can be written as a file: one line otherwise."""
     path = Path(path)
     if path.is_dir():
@@ -58,7 +58,7 @@ def output_file(path: str | Path, flag: str = "-o") -> Path:
     return path
 
 
-def output_folder(path: str | Path, flag: str = "-o") -> Path:
+def output_folder(path: str | Path, flag: str = "output") -> Path:
     """Check before any work that ``path`` can be used as an output folder."""
     path = Path(path)
     if path.exists() and not path.is_dir():

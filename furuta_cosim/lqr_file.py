@@ -72,22 +72,22 @@ def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
     diagonal values or n*n entries (None: python-control's defaults of :func:`lqr`, the paper's
     for the pendulum). The controller is named ``name``, else after the output file, else
     ``lqr``; the file records the model as it was given, a path relative to the file's own
-    folder (so that the file travels with what it names, and ``analyze`` finds it again). Problems name the flag or file at fault (ConfigError,
+    folder (so that the file travels with what it names, and ``analyze`` finds it again). Problems name the parameter or file at fault (ConfigError,
     DesignError).
     """
     if not continuous and not (isinstance(period, (int, float)) and period > 0):
-        raise DesignError(f"--period: must be > 0, got {period}")
+        raise DesignError(f"period: must be > 0, got {period}")
     if output:
         output_file(output)
     model = load_model(model_name)
-    weights = (_weights(Q, model.n, "--Q"), _weights(R, model.B.shape[1], "--R"))
+    weights = (_weights(Q, model.n, "Q"), _weights(R, model.B.shape[1], "R"))
     try:
         controller = lqr(model, *weights, None if (continuous or model.discrete) else period)
     except DesignError as error:
         if error.key == "A, B":
             raise ConfigError([f"{_model_source(model_name)}: A, B: {error}"]) from None
         if error.key:
-            raise DesignError(f"--{error.key}: {error}") from None
+            raise DesignError(f"{error.key}: {error}") from None
         raise
     name = name or (Path(output).stem if output else "lqr")
     controller = dataclasses.replace(controller, name=name)
@@ -95,7 +95,7 @@ def design_lqr_file(model_name: str, *, Q: Sequence[float] | None = None,
     try:
         F = prefilter(model, controller, tracked)
     except DesignError as error:
-        raise DesignError(f"--track {tracked}: {error}") from None
+        raise DesignError(f"track {tracked}: {error}") from None
     cfile = ControllerFile(controller, controller.period or (0.0 if continuous else period),
                            recorded_model(model_name, Path(output).parent if output else None),
                            tracked, F, description,

@@ -352,7 +352,7 @@ def unbaselined(baseline: dict, result: RunResult) -> list[str]:
             f"{kind} {', '.join(names)}" for kind, names in (("metric", metrics), ("signal", signals)) if names]
 
 
-def merged(document: dict, baseline: dict | None, differences: list[Difference], scenario: Scenario) -> dict:
+def merged(document: dict, baseline: dict | None, differences: list[Difference]) -> dict:
     """The baseline document to write on ``--update``: the new run's, except that every value
     the old baseline holds and the run still reproduces (within the scenario's tolerances) is
     kept as it was, so that an update changes only what changed (adding a metric adds its
@@ -514,24 +514,24 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
 
     check_workers(workers)
     if junit:
-        output_file(junit, "--junit")
+        output_file(junit, "junit")
     if output:
         output_folder(output)
     if baselines is not None and Path(baselines).exists() and not Path(baselines).is_dir():
-        raise ConfigError([f"--baselines {baselines}: is a file; name the folder that holds "
+        raise ConfigError([f"baselines {baselines}: is a file; name the folder that holds "
                            "<scenario>/<controller>.yaml baselines"])
     if update and (fmu or overrides or mapping or plant):
-        raise ConfigError(["--update writes the baselines from the scenarios' own plants; "
-                           "leave out --fmu, --mapping, --plant and --params"])
+        raise ConfigError(["update: writes the baselines from the scenarios' own plants; "
+                           "leave out `fmu`, `mapping`, `plant` and `overrides`"])
     if plant is not None and fmu is not None:
-        raise ConfigError(["--plant: give a plant file or an FMU (--fmu), not both"])
+        raise ConfigError(["plant: give a plant or an FMU (`fmu`), not both"])
     if plant is not None:
         load_plant(plant)  # a bad plant is one error, not one per scenario
     if (fmu or mapping) and not names:
-        raise ConfigError(["--fmu: name the scenarios to run on it (the shipped scenarios are for "
+        raise ConfigError(["fmu: name the scenarios to run on it (the shipped scenarios are for "
                            "several plants)"])
     if mapping and not fmu:
-        raise ConfigError(["--mapping: maps the variables of an FMU given with --fmu; give one"])
+        raise ConfigError(["mapping: maps the variables of a plant FMU given as `fmu`; give one"])
     started = time.perf_counter()
     plant_mapping = load_mapping(mapping) if mapping else None
     jobs = []   # (prepared, compiled, baseline path, baseline or None)
@@ -586,8 +586,7 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             if baseline["controller"].get("sha256") != file_hash(compiled.cfile.path):
                 case.notes.append(f"{compiled.cfile.source} changed since the baseline was made")
         if update:
-            document = merged(make_baseline(prepared, compiled, result), baseline, case.differences,
-                              prepared.scenario)
+            document = merged(make_baseline(prepared, compiled, result), baseline, case.differences)
             old = target.read_text() if target.exists() else None
             text = baseline_text(document)
             case.status = "new" if old is None else ("unchanged" if old == text else "updated")

@@ -384,7 +384,7 @@ def reproduce(output: str | Path, *, budget: str = "quick", workers: int = 1,
     if budget not in BUDGETS:
         from furuta_cosim.errors import ConfigError
 
-        raise ConfigError([f"--budget: expected one of {', '.join(BUDGETS)}, got {budget!r}"])
+        raise ConfigError([f"budget: expected one of {', '.join(BUDGETS)}, got {budget!r}"])
     out = output_folder(output)
     figures = out / "figures"
     log("building the plant FMU")

@@ -248,7 +248,7 @@ def load_mapping(path: str | Path) -> PlantMapping:
 
     path = Path(path)
     if not path.is_file():
-        raise ConfigError([f"--mapping {path}: no such file"])
+        raise ConfigError([f"mapping {path}: no such file"])
     data = load_yaml(path)
     check = Checker(path)
     top = check.mapping(data, "", optional=("control_input",) + MAPPING_KEYS)

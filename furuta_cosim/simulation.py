@@ -103,7 +103,7 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     from furuta_cosim.report.figures import plot_runs
 
     if every < 1:
-        raise ConfigError([f"--every: must be a whole number >= 1, got {every}"])
+        raise ConfigError([f"every: must be a whole number >= 1, got {every}"])
     out = output_folder(output)
     earlier = _files_of_earlier_run(out)
     prepared = prepare(scenario, fmu=fmu)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -36,3 +39,45 @@ def python_blocks() -> list[tuple[str, str]]:
     """Every ```python block of the documentation, as (where, code)."""
     return [(f"{name} python block {k}", block) for name, text in documentation().items()
             for k, block in enumerate(re.findall(r"```python\n(.*?)```", text, re.S))]
+
+
+STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
+FOREIGN = Path(__file__).parent / "foreign"
+
+
+def build_foreign(tool: str, script: Path, folder: Path, *project_files: Path) -> None:
+    """Build an FMU with another exporter (``pythonfmu`` or ``pythonfmu3``) into ``folder``;
+    a failed build shows the exporter's own output."""
+    # the exporter imports the script, which imports its project files
+    path = os.pathsep.join([str(Path(f).parent) for f in project_files] + [os.environ.get("PYTHONPATH", "")])
+    done = subprocess.run([sys.executable, "-m", tool, "build", "-f", str(script), *map(str, project_files),
+                           "-d", str(folder)], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": path})
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def scheduled_only(source: Path, target: Path) -> Path:
+    """A copy of the FMI 3.0 FMU ``source`` as a clocked FMU would come: its co-simulation
+    interface renamed to scheduled execution, model exchange removed."""
+    import re
+    import zipfile
+
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
+        for name in archive.namelist():
+            data = archive.read(name)
+            if name == "modelDescription.xml":
+                text = re.sub(r"<CoSimulation\b", "<ScheduledExecution", data.decode())
+                text = text.replace("</CoSimulation>", "</ScheduledExecution>")
+                data = re.sub(r"<ModelExchange\b[^>]*?/>|<ModelExchange\b.*?</ModelExchange>", "", text,
+                              flags=re.S).encode()
+            out.writestr(name, data)
+    return target
+
+
+def run_cli(capsys, *argv):
+    """``furuta-cosim ARGV`` in-process: (exit code, stdout, stderr)."""
+    from furuta_cosim.cli import main
+
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err

@@ -12,7 +12,7 @@ from furuta_cosim.models import load_model
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
-from conftest import run_cli
+from helpers import run_cli
 
 
 def gain(model, controller, F, w):

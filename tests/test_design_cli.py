@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import run_cli as run
+from helpers import run_cli as run
 
 
 def test_design_lqr_json_gives_the_printed_gain(capsys):

@@ -19,7 +19,7 @@ from furuta_cosim.fmu.plants import load_plant
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
 
-from conftest import run_cli
+from helpers import run_cli
 
 
 def assert_same_trace(a: Trace, b: Trace):

@@ -10,7 +10,7 @@ import pytest
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.identify.experiment import Free, estimated_noise, load_experiment
 
-from conftest import run_cli
+from helpers import run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "scenarios" / "rigs" / "qube-servo-3"

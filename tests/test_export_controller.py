@@ -12,7 +12,7 @@ from furuta_cosim.fmu.check import ecos_available
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
 
-from conftest import run_cli
+from helpers import run_cli
 
 # a dynamic controller whose state sees the plant (Bc != 0), unlike the published one
 DYNAMIC = """\

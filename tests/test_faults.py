@@ -7,14 +7,13 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 import yaml
 
 from furuta_cosim import paths
 
-from conftest import run_cli
+from helpers import run_cli
 
 SHIPPED = paths.scenarios()
 MISSING = object()

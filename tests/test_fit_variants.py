@@ -91,7 +91,7 @@ def test_a_spec_draws_its_variants_and_its_plant_from_the_fit(tmp_path):
 
 
 def test_a_robust_tuning_reports_each_controllers_worst_variant(tmp_path, capsys):
-    from conftest import run_cli
+    from helpers import run_cli
 
     root = Path(__file__).resolve().parent.parent
     fit = _fit(tmp_path)

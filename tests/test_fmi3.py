@@ -14,7 +14,7 @@ from furuta_cosim.fmu.session import PlantSession, PlantSession3
 from furuta_cosim.regression import regress
 from furuta_cosim.scenario import load_scenario
 
-from conftest import FOREIGN, build_foreign, run_cli, scheduled_only
+from helpers import FOREIGN, build_foreign, run_cli, scheduled_only
 
 STATES = "{theta0: arm_angle, dtheta0: arm_rate, theta1: pend_angle, dtheta1: pend_rate, i: current}"
 PLANT = """\

@@ -14,7 +14,7 @@ from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.session import PlantSession, PlantSession3
 from furuta_cosim.scenario import load_scenario
 
-from conftest import run_cli
+from helpers import run_cli
 
 START = {"theta1_start": 0.1, "V": 0.5}
 

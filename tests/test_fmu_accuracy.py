@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 from furuta_cosim.fmu.plants import load_plant
 from furuta_cosim.fmu.session import PlantSession
 
-from conftest import STATES
+from helpers import STATES
 
 
 def paper_rhs(p, voltage):

@@ -11,7 +11,7 @@ from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import load_plant
 from furuta_cosim.fmu.session import PlantSession
 
-from conftest import STATES
+from helpers import STATES
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from fmpy.validation import validate_fmu
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.session import FmuBinary, PlantSession
 
-from conftest import STATES
+from helpers import STATES
 
 FMI2_FUNCTIONS = """fmi2GetTypesPlatform fmi2GetVersion fmi2SetDebugLogging fmi2Instantiate
 fmi2FreeInstance fmi2SetupExperiment fmi2EnterInitializationMode fmi2ExitInitializationMode

@@ -3,7 +3,7 @@
 
 from furuta_cosim.fmu.check import ecos_available, relative_difference, run_ecos, run_fmpy
 
-from conftest import STATES
+from helpers import STATES
 
 
 def test_ecos_and_fmpy_agree_to_1e_12(furuta_fmu):

@@ -12,7 +12,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Model, FMU2Slave
 from fmpy.fmi1 import FMICallException
 
-from conftest import run_cli
+from helpers import run_cli
 
 CALIBRATED = {"theta1_start": 0.1}
 

@@ -14,7 +14,7 @@ from furuta_cosim.cosim import evaluate, prepare
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
 
-from conftest import FOREIGN, build_foreign, run_cli
+from helpers import FOREIGN, build_foreign, run_cli
 
 MAPPING = """\
 plant:

@@ -16,7 +16,7 @@ import yaml
 
 from furuta_cosim import paths
 
-from conftest import run_cli
+from helpers import run_cli
 
 SHIPPED = paths.scenarios()
 CLI = [sys.executable, "-m", "furuta_cosim.cli"]

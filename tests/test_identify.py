@@ -13,7 +13,7 @@ from furuta_cosim.identify.fit import autocorrelation_time, fit, sandwich
 from furuta_cosim.identify.replay import target_for
 from furuta_cosim.identify.spec import load_identify_spec
 
-from conftest import run_cli
+from helpers import run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 QUANTUM = 2 * math.pi / 2048

@@ -123,7 +123,7 @@ def test_each_point_of_a_batch_is_sent_before_the_next_is_computed(tmp_path, mon
         return proposal
 
     monkeypatch.setattr(ConstrainedBO, "propose", recorded)
-    monkeypatch.setattr(run, "_executor", lambda spec, evaluator, workers, dask: Recording(spec, evaluator))
+    monkeypatch.setattr(run, "executor_for", lambda spec, evaluator, workers, dask: Recording(spec, evaluator))
     spec = load_spec("paper-spectral")
     spec = dataclasses.replace(spec, baselines=(), optimizer=dataclasses.replace(
         spec.optimizer, batch=2, n_initial_points=4))

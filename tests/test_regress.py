@@ -14,7 +14,7 @@ import pytest
 from furuta_cosim import paths
 from furuta_cosim.regression import regress
 
-from conftest import run_cli
+from helpers import run_cli
 
 SHIPPED = sorted(p.stem for p in paths.scenarios().glob("*.yaml"))
 MAPPING = """\
@@ -164,7 +164,7 @@ def test_a_baseline_of_another_scenario_version_is_refused(tmp_path, capsys):
     (["paper-step", "--fmu", "x.fmu", "--mapping", "missing.yaml"], "--mapping missing.yaml: no such file"),
     (["paper-step", "--params", "C1=abc"], "--params C1=abc: expected NAME=NUMBER"),
     (["paper-step", "--params", "nosuchset"], "nosuchset"),
-    (["paper-step", "--update", "--params", "C1=1e-4"], "--update writes the baselines"),
+    (["paper-step", "--update", "--params", "C1=1e-4"], "--update: writes the baselines"),
     (["nosuchscenario"], "nosuchscenario"),
 ])
 def test_bad_arguments_are_one_line(capsys, argv, expected):

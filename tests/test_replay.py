@@ -10,7 +10,7 @@ import pytest
 from furuta_cosim.identify.experiment import load_experiment
 from furuta_cosim.identify.replay import open_session, period, simulate, target_for
 
-from conftest import run_cli
+from helpers import run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "scenarios" / "rigs" / "qube-servo-3"
@@ -70,7 +70,7 @@ def test_a_mapped_foreign_fmu_replays_as_our_own(foreign_fmu, tmp_path, capsys):
 
 
 def test_a_foreign_fmu_that_returns_nan_fails_the_replay(tmp_path, capsys):
-    from conftest import FOREIGN, build_foreign
+    from helpers import FOREIGN, build_foreign
 
     build_foreign("pythonfmu", FOREIGN / "nan_fmu.py", tmp_path, FOREIGN / "pendulum_physics.py")
     fmu = next(tmp_path.glob("*.fmu"))

@@ -9,7 +9,7 @@ import pytest
 
 from furuta_cosim.reproduce import reproduce
 
-from conftest import run_cli
+from helpers import run_cli
 
 CHROMIUM, DRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 

@@ -10,7 +10,7 @@ from furuta_cosim.errors import FmuError
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.session import PlantSession
 
-from conftest import run_cli
+from helpers import run_cli
 
 
 @pytest.fixture(scope="module")

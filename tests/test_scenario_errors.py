@@ -6,7 +6,7 @@ from furuta_cosim.references import KINDS
 
 from furuta_cosim.cli import main
 
-from conftest import run_cli
+from helpers import run_cli
 
 BASE = """\
 plant: {model: furuta, initial: {theta1: 0.1}}

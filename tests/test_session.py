@@ -13,7 +13,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
 from furuta_cosim.errors import FmuError
 from furuta_cosim.fmu.session import FmuBinary, PlantSession
 
-from conftest import STATES
+from helpers import STATES
 
 
 def trajectory(plant, theta1, steps=300, voltage=0.2):

@@ -14,7 +14,7 @@ from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.report.figures import figure_of_runs
 from furuta_cosim.scenario import load_scenario
 
-from conftest import run_cli
+from helpers import run_cli
 
 ROOT = Path(__file__).resolve().parent.parent
 

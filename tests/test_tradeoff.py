@@ -15,7 +15,7 @@ from furuta_cosim.tuning.optimizers import RandomSearch, latin_hypercube
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
-from conftest import run_cli
+from helpers import run_cli
 
 SPEC = """\
 name: tradeoff-small

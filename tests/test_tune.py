@@ -11,7 +11,7 @@ from furuta_cosim.errors import ConfigError
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
-from conftest import run_cli
+from helpers import run_cli
 
 SPEC = paths.scenarios() / "tuning" / "paper-spectral.yaml"
 
@@ -419,7 +419,7 @@ def test_a_box_around_the_lqr_holds_the_published_controller(tmp_path, capsys):
     only (warm_start: false), and the published controller is scored alike."""
     from furuta_cosim.controllers import load_controller
     from furuta_cosim.tuning.objective import Evaluator
-    from furuta_cosim.tuning.run import initial_design
+    from furuta_cosim.tuning.methods import initial_design
 
     spec = load_spec("paper-spectral")
     evaluator = Evaluator(spec)

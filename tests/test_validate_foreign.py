@@ -9,7 +9,7 @@ import pytest
 
 from furuta_cosim.cli import main
 
-from conftest import FOREIGN, build_foreign, scheduled_only
+from helpers import FOREIGN, build_foreign, scheduled_only
 
 
 @pytest.fixture(scope="module")

@@ -100,7 +100,7 @@ def scenario_controllers(prepared: Prepared, names: Sequence | None = None) -> l
     """The scenario's own controllers (relative files beside the scenario file), or ``names``
     given on a command line (relative to the working directory)."""
     if names:
-        return [compile_controller(prepared, n, key=f"--controller {n}") for n in names]
+        return [compile_controller(prepared, n, key=f"controllers {n}") for n in names]
     folder = prepared.scenario.folder
     return [compile_controller(prepared, n, key=f"controllers[{k}]", beside=folder)
             for k, n in enumerate(prepared.scenario.controllers)]

@@ -320,7 +320,7 @@ def _plant(scenario: Scenario, fmu: str | Path | None) -> tuple[PlantSet | None,
         return plant, build_fmu(plant)
     path = Path(given)
     if not path.is_file():
-        where = f"--fmu {given}" if fmu is not None else f"{scenario.source}: plant.fmu: {given}"
+        where = f"fmu {given}" if fmu is not None else f"{scenario.source}: plant.fmu: {given}"
         raise ConfigError([f"{where}: no such FMU file"])
     return plant, path
 

@@ -37,7 +37,7 @@ def max_workers() -> int:
     return 4 * default_workers()
 
 
-def check_workers(workers: int, flag: str = "--workers") -> int:
+def check_workers(workers: int, flag: str = "workers") -> int:
     """``workers`` when it is a usable count of worker processes; ConfigError otherwise."""
     from furuta_cosim.errors import ConfigError
 
@@ -94,7 +94,7 @@ def check_address(address: str) -> str:
     from furuta_cosim.errors import ConfigError
 
     if address != "local" and not _ADDRESS.fullmatch(str(address)):
-        raise ConfigError([f"--dask: expected 'local' or a scheduler address such as "
+        raise ConfigError([f"dask: expected 'local' or a scheduler address such as "
                            f"tcp://host:8786, got {address!r}"])
     return address
 
@@ -108,7 +108,7 @@ def connect_dask(address: str, workers: int):
     try:
         from distributed import Client, LocalCluster
     except ImportError:
-        raise ConfigError(["--dask: Dask is not installed (pip install -e '.[dask]')"]) from None
+        raise ConfigError(["dask: Dask is not installed (pip install -e '.[dask]')"]) from None
     if address == "local":
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=None, env=SINGLE_THREAD)
@@ -116,7 +116,7 @@ def connect_dask(address: str, workers: int):
     try:
         return Client(address, timeout="30s"), None
     except (OSError, TimeoutError) as error:
-        raise ConfigError([f"--dask {address}: no Dask scheduler answers there ({error})"]) from None
+        raise ConfigError([f"dask {address}: no Dask scheduler answers there ({error})"]) from None
 
 
 def session_for(prepared: Prepared):

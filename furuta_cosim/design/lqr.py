@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from furuta_cosim.defaults import PAPER_PERIOD  # noqa: F401 (re-exported: the design's default)
 from furuta_cosim.design.controller import GeneralizedController
 from furuta_cosim.design.linear import LinearModel, discretize, unstable_uncontrollable_modes
 from furuta_cosim.errors import DesignError

@@ -311,7 +311,7 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
     fmi_version : {"2.0", "3.0"}
     """
     if fmi_version not in FMI_VERSIONS:
-        raise ConfigError([f"--fmi-version: expected one of {', '.join(FMI_VERSIONS)}, got {fmi_version!r}"])
+        raise ConfigError([f"fmi_version: expected one of {', '.join(FMI_VERSIONS)}, got {fmi_version!r}"])
     if not isinstance(plant, PlantSet):
         plant = load_plant(plant)
     memo = repr((plant.model, sorted(plant.parameters.items()), plant.linear,

@@ -123,7 +123,8 @@ _FATAL = 4  # fmi2Fatal (and fmi2Pending, which nothing here asks for): the inst
 
 
 @functools.lru_cache(maxsize=64)
-def _read(path: str, stamp: tuple) -> ModelDescription:
+def _read(path: str, _stamp: tuple) -> ModelDescription:
+    # ``_stamp`` (size and mtime) only keys the cache: a changed file is read again
     try:
         return fmpy.read_model_description(path)
     except Exception as error:  # fmpy raises bare Exceptions for malformed FMUs
@@ -299,7 +300,7 @@ class PlantSession:
         return session
 
     # -- errors ----------------------------------------------------------------------------
-    def _log(self, env, instance, status, category, message) -> None:
+    def _log(self, _env, _instance, _status, _category, message) -> None:
         self._messages.append(_FFI.string(message).decode(errors="replace"))
 
     def _drain(self) -> str:
@@ -319,7 +320,7 @@ class PlantSession:
         if status >= 2:
             raise FmuError(f"{self.binary.identifier}: {what} failed: {self._drain()}")
 
-    def _gone(self, call, t: float, h: float) -> int:
+    def _gone(self, _call, _t: float, _h: float) -> int:
         """A step of an instance that is closed or failed fatally: an error, never a call."""
         self._usable()
         return 0
@@ -444,7 +445,7 @@ class PlantSession:
                 2: f"{self.DO_STEP} at t = {self.time:.9g}", 3: "reading the outputs"}[which]
         self._check(status, what)
 
-    def _step_three_calls(self, call, t: float, h: float) -> int:
+    def _step_three_calls(self, _call, t: float, h: float) -> int:
         lib, c = self._lib, self._c  # a closed or fatally failed instance steps through _gone
         if self._n_in and (status := lib.fmi2SetReal(c, self._in_vr, self._n_in, self._in)) >= 2:
             return 8 + status
@@ -576,7 +577,7 @@ class PlantSession3(PlantSession):
         self._h = 0.0
         self._initialized = False
 
-    def _log3(self, env, status, category, message) -> None:
+    def _log3(self, _env, _status, _category, message) -> None:
         self._messages.append(_FFI.string(message).decode(errors="replace"))
 
     def reset(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0) -> None:

@@ -73,17 +73,17 @@ def target_for(plant: str | Path | None = None, fmu: str | Path | None = None,
     or of ``--fmu FMU [--mapping FILE]``."""
     if fmu is not None:
         if plant is not None:
-            raise ConfigError(["--fmu: give a plant file or an FMU, not both"])
+            raise ConfigError(["fmu: give a plant or an FMU (`plant`), not both"])
         from furuta_cosim.scenario import load_mapping
 
         path = Path(fmu)
         if not path.is_file():
-            raise ConfigError([f"--fmu {fmu}: no such FMU"])
+            raise ConfigError([f"fmu {fmu}: no such FMU"])
         view = load_mapping(mapping) if mapping else None
         return Target(path.name + (f"#{Path(mapping).name}" if mapping else ""), str(path),
                       mapping=view)
     if mapping is not None:
-        raise ConfigError(["--mapping: maps a plant FMU given with --fmu"])
+        raise ConfigError(["mapping: maps the variables of a plant FMU given as `fmu`; give one"])
     from furuta_cosim.fmu.exporter import build_fmu
     from furuta_cosim.fmu.plants import load_plant
 

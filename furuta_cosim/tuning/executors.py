@@ -169,11 +169,11 @@ class Dask(_Executor):
                 pass
             except CancelledError:
                 raise RunStopped(f"the Dask scheduler {self.address} was lost; what was evaluated "
-                                 "is kept: --resume continues the run") from None
+                                 "is kept: `resume` continues the run") from None
             except Exception as error:  # noqa: BLE001 (KilledWorker included: the point failed)
                 if self._client.status not in ("running", "connecting", "newly-created"):
                     raise RunStopped(f"the Dask scheduler {self.address} was lost ({error}); "
-                                     "--resume continues the run") from None
+                                     "`resume` continues the run") from None
                 return failed(self.spec, _describe(error))
             if self._client.status != "running":
                 idle += poll

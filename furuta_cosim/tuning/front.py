@@ -98,7 +98,7 @@ def _mark(path: Path, records: list[dict], front: set) -> None:
     write_text(path, "".join(dumps(r) + "\n" for r in records))
 
 
-def summary_lines(spec, front: dict) -> list[str]:
+def summary_lines(front: dict) -> list[str]:
     """The front in words, for summary.md."""
     names, points = front["criteria"], front["points"]
     lines = ["", f"Pareto front: {len(points)} non-dominated feasible points of "

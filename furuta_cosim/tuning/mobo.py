@@ -45,7 +45,7 @@ class HypervolumeBO(ConstrainedBO):
         super().__init__(bounds, seed, **settings)
         self.names = list(names)
 
-    def propose(self, records: list[dict], start: int, number: int) -> Proposal:
+    def propose(self, records: list[dict], _start: int, number: int) -> Proposal:
         b = self._batch(records, number)
         rng, X, feasibility = b.rng, b.X, b.feasibility
         rows = [pareto.criteria_of(r, self.names) for r in records]

@@ -28,7 +28,6 @@ from furuta_cosim.metrics import checked
 from furuta_cosim.scenario import scenario_path
 from furuta_cosim.tuning.space import KINDS, Block
 
-METHODS = ("bo", "random", "de")
 OBJECTIVES = ("spectral", "scenarios", "tradeoff")
 AGGREGATES = ("worst", "mean")
 
@@ -128,6 +127,13 @@ class TuningSpec:
         return str(self.path) if self.path else self.name
 
 
+@dataclass(frozen=True)
+class _Objective:
+    """What a method's refusal looks at before the spec is whole: its objective."""
+
+    objective: object
+
+
 def spec_path(name: str | Path) -> Path:
     return resolve_file(name, paths.scenarios() / "tuning", "tuning spec")
 
@@ -175,16 +181,16 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
     time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
     period = check.period(controller.get("period", PAPER_PERIOD), "controller.period")
     model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
-    where = "--plant" if plant is not None else "plant"
+    where = "plant=" if plant is not None else "plant"
     if plant is None and "plant" in top:
         plant = check.string(top["plant"], "plant")
     if from_fit is not None:
         from furuta_cosim.identify.variants import MAX_SAMPLES
 
         fit, samples, seed = from_fit
-        flags = Checker("--from-fit")
-        for flag, value, low, high in (("--samples", samples, 1, MAX_SAMPLES),
-                                       ("--variants-seed", seed, 0, MAX_SEED)):
+        flags = Checker("from_fit")
+        for flag, value, low, high in (("samples", samples, 1, MAX_SAMPLES),
+                                       ("seed", seed, 0, MAX_SEED)):
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise ConfigError([f"{flag}: expected a whole number from {low} to {high}, got {value}"])
         variants, fitted = _variants(flags, {"from_fit": str(Path(fit).resolve()), "samples": samples,
@@ -201,14 +207,14 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
         try:
             given = load_plant(plant, beside=path.parent if where == "plant" else None)
         except ConfigError as error:
-            raise error.within("--plant" if where == "--plant" else f"{path}: {where}") from None
+            raise error.within("plant" if where == "plant=" else f"{path}: {where}") from None
         low, high = given.control_period
         if period is not None and ((low is not None and period < low * (1 - 1e-12))
                                    or (high is not None and period > high * (1 + 1e-12))):
             bounds = " and ".join(f"{name} {v:g}" for name, v in (("min", low), ("max", high)) if v is not None)
             raise ConfigError([f"{path}: controller.period: {period:g} s is outside what the "
                                f"{given.name} plant allows ({given.path.name}: limits.control_period: {bounds})"])
-        plant = _portable_model(str(given.path), path.parent) if where != "--plant" else str(given.path.resolve())
+        plant = _portable_model(str(given.path), path.parent) if where != "plant=" else str(given.path.resolve())
         plant = given.name if _is_shipped(given) else plant
         model_name = f"derived:{plant}"
     try:
@@ -249,9 +255,12 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
     name = (check.file_name(top["name"], "name") if "name" in top
             else check.file_name(path.stem, "name (taken from the file name)"))
     description = check.text(top["description"], "description") if "description" in top else ""
-    if objective and objective.type == "tradeoff" and optimizer and optimizer.method == "de":
-        check.fail("optimizer.method", "de minimizes one number; a tradeoff objective is searched "
-                                       "by bo or random")
+    if objective and optimizer:
+        from furuta_cosim.tuning.methods import METHODS
+
+        refusal = METHODS[optimizer.method].refusal(_Objective(objective))
+        if refusal:
+            check.fail("optimizer.method", refusal)
     if objective and objective.type == "tradeoff" and optimizer and optimizer.front == "ehvi" \
             and len(objective.criteria) != 2:
         check.fail("optimizer.front", f"ehvi computes the hypervolume of two criteria, this objective "
@@ -608,7 +617,9 @@ def _optimizer(check: Checker, value) -> OptimizerSettings | None:
                                                           "warm_start", *_OPTIMIZER_NUMBERS))
     if section is None:
         return None
-    values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", METHODS),
+    from furuta_cosim.tuning.methods import METHODS
+
+    values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", tuple(METHODS)),
               "region": check.string(section.get("region", defaults.region), "optimizer.region", REGIONS),
               "front": check.string(section.get("front", defaults.front), "optimizer.front", FRONTS)}
     for key, rules in _OPTIMIZER_NUMBERS.items():

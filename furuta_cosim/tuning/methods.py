@@ -1,0 +1,264 @@
+"""Optimizer methods: one class per ``optimizer.method`` (``tune --optimizer``), registered
+once in :data:`METHODS`. The spec's check, the CLI's choices, the docs and the error messages
+read the registry; a new method is one class here (with its test).
+
+A method's :meth:`Method.search` drives one :class:`Run`: it asks points, hands them to
+:meth:`Run.evaluate` (or :meth:`Run.submit` and :meth:`Run.collect`, to send each point of a
+batch as soon as it is known), and stops when the history holds ``run.n_calls`` records. A
+resumed run replays its history: a method proposes the same points again (checked by
+:func:`~furuta_cosim.tuning.history.replayed`) and evaluates only what is new.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, ClassVar
+
+import numpy as np
+
+from furuta_cosim.tuning.history import History, record, replayed
+
+METHODS: dict[str, type[Method]] = {}
+
+
+@dataclass
+class Run:
+    """One tuning run as a method sees it: the spec, where candidates are evaluated, the
+    history so far, the budget and the clocks."""
+
+    spec: object                 # TuningSpec
+    folder: Path
+    evaluator: object            # Evaluator
+    executor: object             # tuning/executors.py
+    history: History
+    n_calls: int
+    seed: int
+    clock: dict                  # rundir.Clock: "optimizer" and "evaluation" seconds
+    progress: Callable | None = None
+    log: Callable[[str], None] | None = None
+
+    @property
+    def records(self) -> list[dict]:
+        return self.history.records
+
+    @property
+    def batch(self) -> int:
+        return self.spec.optimizer.batch
+
+    def submit(self, x):
+        return self.executor.submit(x)
+
+    def collect(self, xs, pending, origins, surrogate=None) -> list[float]:
+        """Wait for a batch's outcomes (the evaluation clock: time spent waiting), record them
+        and report progress."""
+        started = time.perf_counter()
+        outcomes = self.executor.gather(pending) if pending else []
+        self.clock["evaluation"] += time.perf_counter() - started
+        names = self.evaluator.space.names
+        for k, (x, outcome) in enumerate(zip(xs, outcomes)):
+            self.history.append(record(len(self.records), x, names, outcome, origins[k], surrogate))
+        self.report()
+        return [outcome.objective for outcome in outcomes]
+
+    def evaluate(self, xs, origin: str) -> list[float]:
+        return self.collect(xs, [self.submit(x) for x in xs], [origin] * len(xs))
+
+    def report(self) -> None:
+        self.clock.save()
+        if self.progress:
+            feasible = [r["objective"] for r in self.records if r["feasible"]]
+            self.progress(len(self.records), self.n_calls, min(feasible) if feasible else None, len(feasible))
+
+
+class Method:
+    """One optimizer method; subclasses set ``name`` and ``description`` and implement
+    :meth:`search`."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    one_number: ClassVar[bool] = False      # minimizes one number: no tradeoff objective
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.name in METHODS:
+            raise ValueError(f"optimizer method {cls.name!r} registered twice")
+        METHODS[cls.name] = cls
+
+    @classmethod
+    def refusal(cls, spec) -> str | None:
+        """Why this method cannot search ``spec`` (its objective), or None."""
+        if cls.one_number and spec.objective is not None and spec.objective.type == "tradeoff":
+            return (f"{cls.name} ({cls.description}) minimizes one number; a tradeoff objective is "
+                    f"searched by {' or '.join(n for n, m in METHODS.items() if not m.one_number)}")
+        return None
+
+    def search(self, run: Run) -> None:
+        raise NotImplementedError
+
+
+def method_for(name: str) -> Method:
+    return METHODS[name]()
+
+
+class Bayes(Method):
+    """Constrained Bayesian optimization (tuning/optimizers.py): GP of the objective and of
+    feasibility, EI times the probability of feasibility in a trust region; for a tradeoff
+    objective expected hypervolume improvement (two criteria) or ParEGO scalarizations."""
+
+    name = "bo"
+    description = "constrained Bayesian optimization"
+
+    def search(self, run: Run) -> None:
+        from furuta_cosim.tuning import pareto
+        from furuta_cosim.tuning.mobo import HypervolumeBO
+        from furuta_cosim.tuning.optimizers import ConstrainedBO, batches
+
+        spec, settings, records = run.spec, run.spec.optimizer, run.records
+        if len(records) >= run.n_calls:
+            return  # a finished run resumed: nothing to propose, no time to count
+        started = time.perf_counter()
+        design = initial_design(spec, run.evaluator, run.seed, run.log)[:run.n_calls]
+        replayed(records, [x for x, _ in design], 0)
+        todo = design[len(records):]
+        run.clock["optimizer"] += time.perf_counter() - started
+        if todo:  # every point is known: all at once, whatever the workers
+            xs = [x for x, _ in todo]
+            run.collect(xs, [run.submit(x) for x in xs], [o for _, o in todo])
+        names = [c.name for c in spec.objective.criteria]
+        parego = spec.objective.type == "tradeoff" and front_search(spec) == "parego"
+        kind = HypervolumeBO if spec.objective.type == "tradeoff" and not parego else ConstrainedBO
+        optimizer = kind(run.evaluator.space.bounds, run.seed, xi=settings.xi, n_initial_points=len(design),
+                         batch=run.batch, gp_restarts=settings.gp_restarts, region=settings.region,
+                         screen=_stable(run.evaluator), **({"names": names} if kind is HypervolumeBO else {}))
+        for number, first, count in batches(len(design), run.batch, run.n_calls):
+            if first + count <= len(records):
+                continue  # evaluated before a resume
+            started = time.perf_counter()
+            seen = records[:first]
+            if parego:  # this batch's scalarization
+                seen = pareto.scalarized(seen, names, run.seed, number)
+            proposal = optimizer.propose(seen, len(design), number)
+            points = proposal.points(count)
+            xs, pending = [], []
+            done = len(records) - first  # a resume in the middle of this batch: proposed again
+            while True:  # each point goes out while the next one is computed
+                started = started or time.perf_counter()
+                x = next(points, None)
+                run.clock["optimizer"] += time.perf_counter() - started
+                started = None
+                if x is None:
+                    break
+                if len(xs) < done:
+                    replayed(records[first:], [x], len(xs))
+                    xs.append(None)
+                    continue
+                xs.append(x)
+                pending.append(run.submit(x))
+            fresh = [x for x in xs if x is not None]
+            run.collect(fresh, pending, [proposal.origin] * len(fresh), proposal.surrogate)
+
+
+class Random(Method):
+    """The same space drawn at random (a seeded sequence: a resumed run draws the same)."""
+
+    name = "random"
+    description = "random search"
+
+    def search(self, run: Run) -> None:
+        from furuta_cosim.tuning.optimizers import RandomSearch
+
+        sampler = RandomSearch(run.evaluator.space.bounds, run.seed)
+        while len(run.records) < run.n_calls:
+            first = len(run.records)
+            run.evaluate([sampler.point(k) for k in range(first, min(first + run.batch, run.n_calls))],
+                         "random")
+
+
+class _Spent(Exception):
+    """The budget is spent: ends scipy's differential evolution from inside."""
+
+
+class DifferentialEvolution(Method):
+    """scipy's differential evolution on the same space and budget; a resumed run replays the
+    recorded evaluations (same seed, same proposals) and evaluates only what is new."""
+
+    name = "de"
+    description = "scipy's differential evolution"
+    one_number = True
+
+    def search(self, run: Run) -> None:
+        from scipy.optimize import differential_evolution
+
+        replay = list(run.records)
+
+        def evaluate_all(_objective, points):  # scipy's map-like ``workers``
+            xs = [list(map(float, x)) for x in points]
+            ys = []
+            while xs and replay and np.allclose(xs[0], replay[0]["x"], rtol=0, atol=1e-12):
+                ys.append(replay.pop(0)["objective"])
+                xs.pop(0)
+            remaining = run.n_calls - len(run.records)
+            if xs and remaining <= 0:
+                raise _Spent()
+            ys += run.evaluate(xs[:remaining], "differential evolution")
+            if len(xs) > remaining:
+                raise _Spent()
+            return ys
+
+        dimensions = len(run.evaluator.space.bounds)
+        budget = run.spec.optimizer.n_calls  # the spec's, not --n-calls: a longer run extends a shorter one
+        started, waited = time.perf_counter(), run.clock["evaluation"]
+        try:
+            differential_evolution(lambda x: 0.0, run.evaluator.space.bounds, seed=run.seed, maxiter=10**9,
+                                   popsize=max(5, min(15, budget // (4 * dimensions) or 1)),
+                                   polish=False, updating="deferred", workers=evaluate_all, tol=0,
+                                   init="latinhypercube")
+        except _Spent:
+            pass
+        run.clock["optimizer"] += time.perf_counter() - started - (run.clock["evaluation"] - waited)
+
+
+def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[float], str]]:
+    """The initial design of ``bo``: the spec's baselines (unless ``optimizer.warm_start`` is
+    false) and ``optimizer.initial`` controllers the space can represent (each said in one
+    line, or why not), then a Latin hypercube up to ``optimizer.n_initial_points``."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.tuning.optimizers import latin_hypercube
+
+    design, seen = [], set()
+    baselines = spec.baselines if spec.optimizer.warm_start else ()
+    for kind, names in (("baseline", baselines), ("initial", spec.optimizer.initial)):
+        for name in names:
+            cfile = load_controller(name)
+            if cfile.name in seen:
+                continue
+            seen.add(cfile.name)
+            x, how = evaluator.space.point_of(cfile)
+            if log:
+                log(f"{kind} {cfile.name}: " + (f"in the initial design, {how}" if x is not None
+                                                 else f"not in the initial design: {how}"))
+            if x is not None:
+                design.append((x, f"{kind} {cfile.name}"))
+    fill = latin_hypercube(spec.optimizer.n_initial_points - len(design), evaluator.space.bounds, seed)
+    return design + [(x, "initial design") for x in fill]
+
+
+def front_search(spec) -> str:
+    """How ``bo`` searches a tradeoff: ``optimizer.front``, auto meaning ehvi for two criteria
+    and parego for more."""
+    if spec.optimizer.front != "auto":
+        return spec.optimizer.front
+    return "ehvi" if len(spec.objective.criteria) == 2 else "parego"
+
+
+def _stable(evaluator):
+    """The exact check of the loop's stability at a point (microseconds to a millisecond,
+    against a co-simulation's tenths of a second): candidates that fail it are not proposed."""
+    def screen(x) -> bool:
+        try:
+            return evaluator.loop_checks(evaluator.space.controller(x))[1] == 0
+        except Exception:  # noqa: BLE001 - no controller there: not a candidate
+            return False
+    return screen

@@ -1,0 +1,187 @@
+"""The end of a tuning run: the best controller saved, the baselines scored alike, and the
+summary in JSON and in words (summary.json, summary.md, what ``tune`` prints)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from furuta_cosim.documents import dumps, json_safe
+from furuta_cosim.files import write_text
+from furuta_cosim.report.figures import plot_convergence
+from furuta_cosim.tuning.methods import front_search
+from furuta_cosim.tuning.spec import TuningSpec
+
+
+def _variant_spread(evaluator, document) -> dict:
+    """Per controller (the tuned one, each baseline): its objective on each plant variant
+    alone, the worst of them and their spread."""
+    found = {}
+    candidates = ([("tuned", document["best"]["metrics"])] if document["best"] else []) + [
+        (name, b.get("metrics") or {}) for name, b in document["baselines"].items()]
+    for name, metrics in candidates:
+        scores = evaluator.by_variant(metrics)
+        known = [v for v in scores if v is not None]
+        found[name] = {"scores": scores,
+                       "worst": max(known) if len(known) == len(scores) else None,
+                       "best": min(known) if known else None}
+    return found
+
+
+def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> dict:
+    """The run's summary: best.yaml, the baselines scored alike, summary.json, summary.md and
+    the convergence figure, written to ``folder``; returns the summary document."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.tuning.saved import save_scored
+
+    feasible = [r for r in records if r["feasible"]]
+    best = min(feasible, key=lambda r: (r["objective"], r["index"])) if feasible else None
+    baselines = {}
+    for name in spec.baselines:
+        cfile = load_controller(name)
+        outcome = evaluator.score(cfile.controller)
+        baselines[cfile.name] = json_safe({"objective": outcome.objective,
+                                            "feasible": outcome.feasible,
+                                            **({"criteria": outcome.criteria}
+                                               if outcome.criteria is not None else {}),
+                                            "constraints": outcome.constraints,
+                                            "metrics": outcome.metrics})
+    failures = sum(1 for r in records if r["error"])
+    warnings = evaluator.vacuous() if spec.objective.type != "spectral" else []
+    document = {"spec": spec.name, "method": method, "seed": seed, "n_calls": n_calls,
+                "evaluations": len(records), "feasible": len(feasible), "failed": failures,
+                "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
+                "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines,
+                "warnings": warnings}
+    if method == "bo" and spec.objective.type == "tradeoff":
+        document["search"] = {"ehvi": "expected hypervolume improvement",
+                              "parego": "ParEGO scalarizations"}[front_search(spec)]
+    if best is not None:
+        prefilter = save_scored(evaluator, best, folder / "best.yaml", f"{spec.name}-best",
+                                f"best of tuning {spec.name} ({method}, seed {seed})", method, seed)
+        document["best"] = {"index": best["index"], "objective": best["objective"],
+                            "origin": best.get("origin") or "", "parameters": best["parameters"],
+                            "metrics": best["metrics"], "file": "best.yaml",
+                            "prefilter": prefilter}
+    if len(spec.variants) > 1 and spec.objective.type == "scenarios":
+        document["variants"] = _variant_spread(evaluator, document)
+    if spec.objective.type == "tradeoff":
+        from furuta_cosim.tuning.front import write_front
+
+        document["front"] = write_front(evaluator, folder, records, baselines, method, seed)
+    levels = {name: b["objective"] for name, b in baselines.items() if b["feasible"]}
+    plot_convergence(records, folder / "convergence", levels)
+    write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
+    write_text(folder / "summary.md", summary_text(spec, document))
+    return document
+
+
+def summary_text(spec: TuningSpec, document: dict) -> str:
+    """summary.md: the run's summary document in words (what ``tune`` prints)."""
+    lines = [f"# Tuning {spec.name}", "", spec.description, "",
+             f"- method: {document['method']}" + (f" ({document['search']})" if document.get("search") else "")
+             + f", seed {document['seed']}, {document['evaluations']} "
+             f"evaluations, {document['feasible']} feasible, {document['failed']} failed",
+             f"- objective: {document['objective']}" + _described(spec.objective),
+             f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
+             f"{document['evaluation_seconds']:.1f} s", ""]
+    if spec.plant is not None:
+        lines += [f"On plant {spec.plant}: the controller is designed on its linearization."]
+        lines += [f"- {note}." for note in spec.notes] + [""]
+    lines += [f"Warning: {line}." for line in document.get("warnings") or []]
+    lines += [""] if document.get("warnings") else []
+    best = document["best"]
+    if best:
+        origin, F = best.get("origin") or "the search", best.get("prefilter") or {}
+        lines.append(f"Best: objective {best['objective']:.6g} at evaluation {best['index']}, "
+                     f"from {origin} (best.yaml" + (f", prefilter F = {F['F']:.6g} for {F['output']}"
+                                                    if F else "") + ").")
+    else:
+        lines.append("No feasible controller was found.")
+    if document.get("variants"):
+        lines.append(f"Over the {len(spec.variants)} plant variants, each scored alone (the "
+                     "objective on that variant's scenarios):")
+        for name, v in document["variants"].items():
+            worst = "a run without a finite value" if v["worst"] is None else f"{v['worst']:.6g}"
+            spread = "" if v["best"] is None else f", best {v['best']:.6g}"
+            lines.append(f"- {name}: worst {worst}{spread}")
+        lines.append("")
+    if document.get("front") is not None:
+        from furuta_cosim.tuning.front import summary_lines
+
+        lines += summary_lines(document["front"]) + [""]
+    for name, baseline in document["baselines"].items():
+        verdict = f"{baseline['objective']:.6g}" if baseline["feasible"] else \
+            f"infeasible (score {baseline['objective']:.6g})"
+        better = ""
+        if best and baseline["feasible"]:
+            better = (" - the tuned controller scores better" if best["objective"] < baseline["objective"]
+                      else f" - the tuned controller does NOT beat it (worse by "
+                           f"{(best['objective'] / baseline['objective'] - 1) * 100:.1f} %)")
+        lines.append(f"- {name}, scored alike: {verdict}{better}")
+        if best and baseline["feasible"] and best.get("metrics") and baseline.get("metrics") \
+                and spec.objective.type == "scenarios":
+            lines += _run_by_run(spec, best["metrics"], baseline["metrics"], name)
+    if best and best.get("metrics"):
+        lines += ["", "Metric by metric, on every scenario and plant variant:", ""]
+        keys = list(dict.fromkeys([t.metric for t in spec.objective.all_terms]
+                                  + [m for m, _ in spec.constraints.no_worse_than]
+                                  + ["error.ISE", "u.rms", "u.peak_abs"]
+                                  + [f"{name}.max_abs" for name, _ in spec.constraints.max_abs]))
+        names = [n for n, b in document["baselines"].items() if b.get("metrics")]
+        lines.append("| run | metric | tuned | " + " | ".join(names) + " | tuned / " +
+                     (names[0] if names else "-") + " |")
+        lines.append("| --- " * (4 + len(names)) + "|")
+        same = []
+        for label, values in best["metrics"].items():
+            for key in keys:
+                value = values.get(key)
+                others = [document["baselines"][n]["metrics"].get(label, {}).get(key) for n in names]
+                if others and all(other == value for other in others):
+                    same.append(f"{label} {key}")  # equal everywhere: no information in a row
+                    continue
+                ratio = (f"{value / others[0]:.3f}" if names and value is not None and others[0]
+                         else "")
+                shown = [_cell(v) for v in [value] + others]
+                lines.append(f"| {label} | {key} | " + " | ".join(shown) + f" | {ratio} |")
+        if same:
+            lines += ["", "The same for the tuned controller and every baseline (left out of the "
+                          "table): " + ", ".join(same) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def _described(objective) -> str:
+    """The objective in words, after its type."""
+    if objective.type == "spectral":
+        return (" (the paper's max |Re eig(Abar)| as stated: it measures the fastest mode, not the "
+                "slowest, so it rewards poles near the imaginary axis; docs/pages/paper-readings.md §3)")
+
+    def terms(criterion) -> str:
+        return " + ".join(f"{t.weight:g} {t.metric}" + (f" / {Path(t.relative_to).stem}'s"
+                                                        if t.relative_to else "")
+                          for t in criterion.terms) + f", {criterion.aggregate} over scenarios and plant variants"
+
+    if objective.type == "scenarios":
+        return " = " + terms(objective.criteria[0])
+    return (" of " + "; ".join(f"{c.name} = {terms(c)}" for c in objective.criteria)
+            + " (each minimized; best.yaml is the point of the lowest mean of the criteria)")
+
+
+def _run_by_run(spec: TuningSpec, tuned: dict, baseline: dict, name: str) -> list[str]:
+    """Where the tuned controller is lower and where higher than a baseline, run by run, in the
+    objective's own metrics: a lower mean can hide runs on which it is worse."""
+    lower, higher = [], []
+    for label, values in tuned.items():
+        changes = []
+        for term in spec.objective.terms:
+            ours, theirs = values.get(term.metric), baseline.get(label, {}).get(term.metric)
+            if ours is not None and theirs:
+                changes.append((term.metric, (ours / theirs - 1) * 100))
+        if changes:
+            text = f"{label} (" + ", ".join(f"{metric} {change:+.1f} %" for metric, change in changes) + ")"
+            (lower if all(change < 0 for _, change in changes) else higher).append(text)
+    return [f"  - lower than {name} in every objective metric on: " + ("; ".join(lower) or "no run"),
+            "  - not lower on: " + ("; ".join(higher) or "no run")]
+
+
+def _cell(value) -> str:
+    return "never" if value is None else format(value, ".4g")
