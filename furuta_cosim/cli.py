@@ -485,6 +485,7 @@ def cmd_list(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from furuta_cosim.defaults import PAPER_PERIOD
+    from furuta_cosim.fmu.versions import VERSIONS
     from furuta_cosim.tuning.methods import METHODS
 
     parser = argparse.ArgumentParser(
@@ -503,7 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", nargs="?", default="furuta",
                    help="model or plant file: furuta (default), table-literal, toy, or a .yaml path")
     p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
-    p.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
+    p.add_argument("--fmi-version", choices=tuple(VERSIONS), default="2.0",
                    help="FMI 2.0 (default) or 3.0; both with co-simulation, and model exchange "
                         "when the model is continuous")
     p.set_defaults(handler=cmd_build_fmu)
@@ -616,7 +617,7 @@ def build_parser() -> argparse.ArgumentParser:
                             help="build a controller as an FMI 2.0 or 3.0 FMU and print its path")
     p.add_argument("controller", help="controller file or name in scenarios/controllers")
     p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
-    p.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
+    p.add_argument("--fmi-version", choices=tuple(VERSIONS), default="2.0",
                    help="FMI 2.0 (default) or 3.0; both with co-simulation, and model exchange "
                         "when the model is continuous")
     p.add_argument("--delay", type=int, choices=(0, 1), default=0,

@@ -16,7 +16,9 @@ def _interface_default(node) -> bool:
     body = [s for s in node.body if not (isinstance(s, ast.Expr) and isinstance(s.value, ast.Constant))]
     if len(body) == 1 and isinstance(body[0], ast.Return):
         value = body[0].value
-        return value is None or isinstance(value, ast.Constant) or (
+        empty = isinstance(value, (ast.Dict, ast.List, ast.Tuple)) and not (
+            value.keys if isinstance(value, ast.Dict) else value.elts)
+        return value is None or empty or isinstance(value, ast.Constant) or (
             isinstance(value, ast.Name) and value.id.isupper())
     return all(isinstance(s, (ast.Pass, ast.Raise)) for s in body)
 

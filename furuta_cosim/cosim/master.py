@@ -27,7 +27,7 @@ from furuta_cosim.defaults import PAPER_PERIOD, TRACKED_OUTPUT
 from furuta_cosim.errors import ConfigError, DesignError, FmuError, PlantUnfit
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import PlantSet, load_plant
-from furuta_cosim.fmu.session import model_description
+from furuta_cosim.fmu.session import SESSIONS, model_description
 from furuta_cosim.fmu.variables import declared_conversion, is_real, settable_start
 from furuta_cosim.metrics import catalogue, problem
 from furuta_cosim.scenario import Scenario
@@ -148,11 +148,11 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
 
     plant, fmu_path = _plant(scenario, fmu)
     description = model_description(fmu_path)
-    if description.fmiVersion not in ("2.0", "3.0") or description.coSimulation is None:
+    if description.fmiVersion not in SESSIONS or description.coSimulation is None:
         interfaces = [name for name, part in (("model exchange", description.modelExchange),
                                               ("scheduled execution", description.scheduledExecution))
                       if part is not None]
-        raise FmuError(f"{fmu_path}: not an FMI 2.0 or 3.0 co-simulation FMU (FMI {description.fmiVersion}, "
+        raise FmuError(f"{fmu_path}: not an FMI {' or '.join(SESSIONS)} co-simulation FMU (FMI {description.fmiVersion}, "
                        f"{' and '.join(interfaces) or 'no interface'}{' only' if interfaces else ''})")
     variables = {v.name: v for v in description.modelVariables}
     identifier = description.coSimulation.modelIdentifier

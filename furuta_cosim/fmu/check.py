@@ -143,7 +143,7 @@ def _validate(fmu: Path, findings: list[Finding]) -> None:
     step = float(md.defaultExperiment.stepSize) if md.defaultExperiment and md.defaultExperiment.stepSize else 1e-3
     try:
         with FmuBinary(fmu) as binary:
-            with PlantSession(binary) as session:
+            with PlantSession.for_binary(binary) as session:
                 session.reset()
                 session.set_io([], outputs)
                 values = [session.step([], step) for _ in range(100)]

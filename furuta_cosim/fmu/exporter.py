@@ -24,16 +24,13 @@ import fmpy
 from furuta_cosim import __version__, paths
 from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.files import atomic, copy, temporary_folder
+from furuta_cosim.fmu import versions
 from furuta_cosim.fmu.compiler import CFLAGS, building, compiler, intact, seal, unwritable
 from furuta_cosim.fmu.declaration import DeclarationError, Model
 from furuta_cosim.fmu.plants import PlantSet, load_plant, models
 
-GLUE_SOURCES = ("fmi2_glue.c", "model_api.h")
-GLUE_SOURCES_3 = GLUE_SOURCES + ("fmi3_glue.c",)
-FMI_VERSIONS = ("2.0", "3.0")
 # FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
 # the cache key, so such builds never mix with ordinary ones
-PLATFORM = {"2.0": "linux64", "3.0": "x86_64-linux"}  # binaries/<platform>/ of each version
 _KINDS = {"parameter": "KIND_PARAMETER", "input": "KIND_INPUT", "output": "KIND_OUTPUT",
           "local": "KIND_LOCAL"}
 
@@ -310,8 +307,7 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
         Receives one line per build step.
     fmi_version : {"2.0", "3.0"}
     """
-    if fmi_version not in FMI_VERSIONS:
-        raise ConfigError([f"fmi_version: expected one of {', '.join(FMI_VERSIONS)}, got {fmi_version!r}"])
+    versions.fmi_version(fmi_version)
     if not isinstance(plant, PlantSet):
         plant = load_plant(plant)
     memo = repr((plant.model, sorted(plant.parameters.items()), plant.linear,
@@ -352,21 +348,18 @@ def _build_cached(plant: PlantSet, log, fmi_version: str = "2.0") -> Path:
     model = declaration(plant)
     model_dir = paths.fmu_sources() / plant.model
     common = paths.fmu_sources() / "common"
-    files = {name: (common / name).read_text()
-             for name in (GLUE_SOURCES if fmi_version == "2.0" else GLUE_SOURCES_3)}
+    version = versions.fmi_version(fmi_version)
+    files = {name: (common / name).read_text() for name in version.glue}
     files["model.c"] = (model_dir / "model.c").read_text()
     digest = hashlib.sha256()
     for name in sorted(files):
         digest.update(name.encode() + b"\0" + files[name].encode() + b"\0")
     digest.update(generate_header(model, "").encode())
-    digest.update((generate_model_description(model, "", sorted(files)) if fmi_version == "2.0"
-                   else generate_model_description_3(model, "")).encode())
+    digest.update(version.model_description(model, "", sorted(files)).encode())
     digest.update(" ".join(CFLAGS).encode())
     key = digest.hexdigest()
     guid = "{" + str(uuid.UUID(key[:32])) + "}"
-    # the FMI 2.0 name stays as it was: caches and files made before FMI 3.0 remain valid
-    target = paths.cache() / (f"{model.identifier}-{key[:16]}.fmu" if fmi_version == "2.0"
-                              else f"{model.identifier}-fmi3-{key[:16]}.fmu")
+    target = paths.cache() / f"{model.identifier}{version.cache_tag}-{key[:16]}.fmu"
     if intact(target, log):
         return target
     cc = compiler()
@@ -413,20 +406,19 @@ def _build(model: Model, files: dict, guid: str, cc: str, target: Path, fmi_vers
             raise FmuError(f"cannot run the C compiler {cc}: {error.strerror}") from None
         if result.returncode != 0:
             raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}")
-        description = (generate_model_description(model, guid, sources) if fmi_version == "2.0"
-                       else generate_model_description_3(model, guid))
+        version = versions.fmi_version(fmi_version)
+        description = version.model_description(model, guid, sources)
         # atomic: a concurrent build or a crash never leaves half an FMU under its name
         with atomic(target) as partial:
             with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
                 # fixed dates: the same sources give the same bytes, whichever build wins
                 _member(archive, "modelDescription.xml", description.encode())
-                _member(archive, f"binaries/{PLATFORM[fmi_version]}/{model.identifier}.so",
+                _member(archive, f"binaries/{version.platform}/{model.identifier}.so",
                         binary.read_bytes(), 0o755)
                 for name in sources:
                     _member(archive, f"sources/{name}", files[name].encode())
-                if fmi_version == "3.0":
-                    _member(archive, "sources/buildDescription.xml",
-                            generate_build_description(model, sources).encode())
+                for name, data in version.extra_sources(model, sources).items():
+                    _member(archive, f"sources/{name}", data)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -85,7 +85,7 @@ def linearize(fmu: str | Path, parameters: Mapping[str, float] | None = None,
 
 
 def _continuous(binary, start, states, input_names, u0, output_names) -> Linearization:
-    with PlantSession(binary, interface="ModelExchange") as session:
+    with PlantSession.for_binary(binary, interface="ModelExchange") as session:
         session.reset(start)
         x0 = np.array(session.get(states))
 
@@ -98,7 +98,7 @@ def _continuous(binary, start, states, input_names, u0, output_names) -> Lineari
 
 
 def _discrete(binary, start, states, input_names, u0, output_names, period) -> Linearization:
-    with PlantSession(binary) as session:
+    with PlantSession.for_binary(binary) as session:
         session.reset(start)
         x0 = np.array(session.get(states))
         session.set_io(input_names, list(states))

@@ -174,8 +174,9 @@ class FmuBinary:
         if not self.path.is_file():
             raise FmuError(f"{self.path}: no such FMU")
         self.model_description = md = model_description(self.path)
-        if md.fmiVersion not in ("2.0", "3.0"):
-            raise FmuError(f"{self.path}: FMI {md.fmiVersion} is not supported (FMI 2.0 and 3.0 are)")
+        if md.fmiVersion not in SESSIONS:
+            raise FmuError(f"{self.path}: FMI {md.fmiVersion} is not supported "
+                           f"(FMI {' and '.join(SESSIONS)} are)")
         interface = md.coSimulation or md.modelExchange or md.scheduledExecution
         if interface is None:
             raise FmuError(f"{self.path}: declares no interface (co-simulation, model exchange "
@@ -240,6 +241,8 @@ class PlantSession:
         Model exchange serves linearization (states in, derivatives out).
     """
 
+    VERSION = "2.0"
+    INSTANTIATE, STEP_IO = "fmi2Instantiate", "step_io"
     REAL, INTEGER = "Real", "Integer"  # the FMI types read and written as double and int
     # the calls whose signature is the same in FMI 2.0 and 3.0 but whose name is not
     GET_STATE, SET_STATE, FREE_STATE = "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"
@@ -248,12 +251,10 @@ class PlantSession:
     # one step in one call (the helper's step_io): the struct and the calls it makes
     SET_REALS, GET_REALS = "fmi2SetReal", "fmi2GetReal"
 
-    def __new__(cls, binary: FmuBinary, *args, **kwargs):
-        if cls is PlantSession and binary.version == "3.0":
-            cls = PlantSession3
-        return super().__new__(cls)
-
     def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
+        if binary.version != self.VERSION:
+            raise FmuError(f"{binary.identifier}: an FMI {binary.version} FMU, not {self.VERSION}: "
+                           "open it with PlantSession.for_binary")
         self.binary = binary
         self._owns_binary = False
         self._lib = binary.lib
@@ -262,21 +263,12 @@ class PlantSession:
         md = binary.model_description
         if interface == "ModelExchange" and md.modelExchange is None:
             raise FmuError(f"{binary.identifier} has no model exchange interface")
-        self._logger = _FFI.callback("void(void*, const char*, int, const char*, const char*)",
-                                     self._log)
-        self._callbacks = _FFI.new("fmi2CallbackFunctions*")
-        self._callbacks.logger = self._logger
-        self._callbacks.allocateMemory = _LIBC.calloc
-        self._callbacks.freeMemory = _LIBC.free
         self._name = _FFI.new("char[]", name.encode())
-        self._guid = _FFI.new("char[]", md.guid.encode())
-        self._resources = _FFI.new("char[]", (self.binary.directory / "resources").as_uri().encode())
-        self._c = self._lib.fmi2Instantiate(self._name, 0 if interface == "ModelExchange" else 1,
-                                            self._guid, self._resources, self._callbacks, 0, 0)
+        self._c = self._instantiate(md, interface)
         if self._c == _FFI.NULL:
-            raise FmuError(f"{binary.identifier}: fmi2Instantiate failed: {self._drain()}")
+            raise FmuError(f"{binary.identifier}: {self.INSTANTIATE} failed: {self._drain()}")
         helper = _step_helper()
-        self._step_io = helper.step_io if helper else self._step_three_calls
+        self._step_io = getattr(helper, self.STEP_IO) if helper else self._step_three_calls
         self._nx = len(binary.states)
         self._x = _FFI.new("double[]", max(self._nx, 1))
         self._dx = _FFI.new("double[]", max(self._nx, 1))
@@ -287,12 +279,30 @@ class PlantSession:
         self._h = 0.0
         self._initialized = False
 
+    def _instantiate(self, md, interface: str):
+        """The FMI 2.0 instance (``fmi2Instantiate``), its callbacks kept alive on ``self``."""
+        self._logger = _FFI.callback("void(void*, const char*, int, const char*, const char*)",
+                                     self._log)
+        self._callbacks = _FFI.new("fmi2CallbackFunctions*")
+        self._callbacks.logger = self._logger
+        self._callbacks.allocateMemory = _LIBC.calloc
+        self._callbacks.freeMemory = _LIBC.free
+        self._guid = _FFI.new("char[]", md.guid.encode())
+        self._resources = _FFI.new("char[]", (self.binary.directory / "resources").as_uri().encode())
+        return self._lib.fmi2Instantiate(self._name, 0 if interface == "ModelExchange" else 1,
+                                         self._guid, self._resources, self._callbacks, 0, 0)
+
+    @staticmethod
+    def for_binary(binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant") -> "PlantSession":
+        """A session of the class for the binary's FMI version (:data:`SESSIONS`)."""
+        return SESSIONS[binary.version](binary, interface, name)
+
     @classmethod
     def open(cls, fmu: str | Path, interface: str = "CoSimulation") -> "PlantSession":
         """Extract and load ``fmu`` for this session alone; :meth:`close` removes it again."""
         binary = FmuBinary(fmu)
         try:
-            session = cls(binary, interface)
+            session = cls.for_binary(binary, interface)
         except Exception:
             binary.close()
             raise
@@ -527,10 +537,12 @@ class PlantSession:
 
 
 class PlantSession3(PlantSession):
-    """The same session on an FMI 3.0 FMU (Float64 and Int32 variables): ``PlantSession(binary)``
-    gives one when the binary is FMI 3.0. Each step is one foreign call (step_io3 of the
+    """The same session on an FMI 3.0 FMU (Float64 and Int32 variables): ``PlantSession.open``
+    and :meth:`PlantSession.for_binary` give one when the binary is FMI 3.0. Each step is one foreign call (step_io3 of the
     helper), or three without a compiler (set, doStep, get)."""
 
+    VERSION = "3.0"
+    INSTANTIATE, STEP_IO = "fmi3Instantiate", "step_io3"
     REAL, INTEGER = "Float64", "Int32"
     GET_STATE, SET_STATE, FREE_STATE = "fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState"
     SET_X, GET_DX = "fmi3SetContinuousStates", "fmi3GetContinuousStateDerivatives"
@@ -538,44 +550,26 @@ class PlantSession3(PlantSession):
     SET_REALS, GET_REALS = "fmi3SetFloat64", "fmi3GetFloat64"
 
     def __init__(self, binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant"):
-        self.binary = binary
-        self._owns_binary = False
-        self._lib = binary.lib
-        self._messages: list[str] = []
-        self._interface = interface
         md = binary.model_description
-        if interface == "ModelExchange" and md.modelExchange is None:
-            raise FmuError(f"{binary.identifier} has no model exchange interface")
         if interface == "CoSimulation" and md.coSimulation is None:
             raise FmuError(f"{binary.identifier} has no co-simulation interface"
                            + (" (scheduled execution, with clocks, is not supported)"
                               if md.scheduledExecution else ""))
+        self._flags = _FFI.new("bool[6]")
+        super().__init__(binary, interface, name)
+
+    def _instantiate(self, md, interface: str):
+        """The FMI 3.0 instance (``fmi3Instantiate<interface>``), its callback kept on ``self``."""
         self._logger = _FFI.callback("void(void*, int, const char*, const char*)", self._log3)
-        self._name = _FFI.new("char[]", name.encode())
         self._token = _FFI.new("char[]", (md.instantiationToken or "").encode())
         # FMI 3.0 gives the resources as a native path that ends with a separator
-        self._resources = _FFI.new("char[]", (str(binary.directory / "resources") + "/").encode())
+        self._resources = _FFI.new("char[]", (str(self.binary.directory / "resources") + "/").encode())
         if interface == "ModelExchange":
-            self._c = self._lib.fmi3InstantiateModelExchange(self._name, self._token, self._resources,
-                                                             False, False, _FFI.NULL, self._logger)
-        else:
-            self._c = self._lib.fmi3InstantiateCoSimulation(
-                self._name, self._token, self._resources, False, False, False, False, _FFI.NULL, 0,
-                _FFI.NULL, self._logger, _FFI.NULL)
-        if self._c == _FFI.NULL:
-            raise FmuError(f"{binary.identifier}: fmi3Instantiate{interface} failed: {self._drain()}")
-        helper = _step_helper()
-        self._step_io = helper.step_io3 if helper else self._step_three_calls
-        self._nx = len(binary.states)
-        self._x = _FFI.new("double[]", max(self._nx, 1))
-        self._dx = _FFI.new("double[]", max(self._nx, 1))
-        self._flags = _FFI.new("bool[6]")
-        self.set_io()
-        self.time = 0.0
-        self._start = 0.0
-        self._k = 0
-        self._h = 0.0
-        self._initialized = False
+            return self._lib.fmi3InstantiateModelExchange(self._name, self._token, self._resources,
+                                                          False, False, _FFI.NULL, self._logger)
+        return self._lib.fmi3InstantiateCoSimulation(
+            self._name, self._token, self._resources, False, False, False, False, _FFI.NULL, 0,
+            _FFI.NULL, self._logger, _FFI.NULL)
 
     def _log3(self, _env, _status, _category, message) -> None:
         self._messages.append(_FFI.string(message).decode(errors="replace"))
@@ -640,3 +634,7 @@ class _Snapshot:
     def __del__(self):
         if self.session._c is not None and self.pointer[0] != _FFI.NULL:
             self.session._free_state(self.pointer)
+
+
+# the session class of each FMI version this project imports (fmu/versions.py lists them)
+SESSIONS: dict[str, type[PlantSession]] = {cls.VERSION: cls for cls in (PlantSession, PlantSession3)}
