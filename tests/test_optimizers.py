@@ -160,3 +160,23 @@ def test_the_convergence_figure_shows_each_baselines_level(tmp_path, monkeypatch
     axis = drawn["figure"].axes[0]
     levels = [line for line in axis.get_lines() if line.get_label() == "lqr-paper (scored alike)"]
     assert len(levels) == 1 and list(levels[0].get_ydata()) == [2.5, 2.5]
+
+
+def test_the_convergence_figure_is_scaled_to_the_gain_and_shows_infeasible_points_by_margin(tmp_path, monkeypatch):
+    """A 2.4 % gain over the LQR fills the axis (one feasible point at 3.8 does not flatten it),
+    and the infeasible points sit on an axis of their own, by how far they broke a constraint."""
+    from furuta_cosim.report import figures
+
+    drawn = {}
+    monkeypatch.setattr(figures, "_save", lambda figure, path, dpi: drawn.setdefault("figure", figure) and [])
+    objectives = [3.8, 1.09, 1.08, 1.0735, 1.2, 1.074]
+    records = [{"index": k, "objective": v, "feasible": True, "margin": -0.1} for k, v in enumerate(objectives)]
+    records += [{"index": 6, "objective": 9.0, "feasible": False, "margin": 0.4}]
+    figures.plot_convergence(records, tmp_path / "c", {"lqr": 1.1})
+    top, below = drawn["figure"].axes
+    low, high = top.get_ylim()
+    assert 1.0735 - 0.01 < low < 1.0735 and 1.1 < high < 1.2  # the gain is most of the axis
+    above = [line for line in top.get_lines() if line.get_label().startswith("feasible, above")]
+    assert len(above) == 1 and list(above[0].get_ydata()) == [high, high]  # 3.8 and 1.2, on the edge
+    crosses = [line for line in below.get_lines() if line.get_label() == "infeasible evaluation"]
+    assert list(crosses[0].get_xdata()) == [6] and list(crosses[0].get_ydata()) == [0.4]

@@ -58,30 +58,62 @@ def _save(figure, path: str | Path, dpi: int) -> list[Path]:
 
 def plot_convergence(records: Sequence[Mapping], path: str | Path,
                      levels: Mapping[str, float] | None = None) -> list[Path]:
-    """A tuning's convergence (each evaluation's objective, infeasible ones marked, the best
-    so far) as ``path``.png and .svg; ``records`` are its history lines, ``levels`` the
-    baselines' scores (a dashed line each)."""
-    index = [r["index"] for r in records]
-    values = np.array([r["objective"] if r["feasible"] else np.nan for r in records])
+    """A tuning's convergence as ``path``.png and .svg: above, each feasible evaluation's
+    objective, the best so far and the baselines' scores (``levels``, a dashed line each),
+    on an axis scaled to where the gain is (from the best to the worst baseline, with room),
+    points beyond it drawn on its edge; below, each infeasible evaluation by its constraint
+    margin (how far it broke its worst constraint, normalized), so that neither hides the
+    other. ``records`` are the history lines."""
+    index = np.array([r["index"] for r in records])
+    feasible = np.array([bool(r["feasible"]) for r in records], dtype=bool)
+    values = np.array([float(r["objective"]) if r["feasible"] else np.nan for r in records])
     running = np.fmin.accumulate(np.where(np.isnan(values), np.inf, values))
-    figure, axis = plt.subplots(figsize=(7, 3.6))
-    axis.plot(index, values, "o", markersize=3, alpha=0.5, label="feasible evaluation")
-    infeasible = [r["index"] for r in records if not r["feasible"]]
-    if infeasible:
-        top = float(np.nanmax(values)) if np.any(np.isfinite(values)) else 1.0
-        axis.plot(infeasible, [top] * len(infeasible), "x", color="grey", markersize=3,
-                  label="infeasible")
+    infeasible = ~feasible
+    rows = 2 if infeasible.any() else 1
+    figure, axes = plt.subplots(rows, 1, sharex=True, figsize=(7, 3.2 + 1.6 * (rows - 1)), squeeze=False,
+                                gridspec_kw={"height_ratios": [2, 1][:rows]})
+    axis = axes[0, 0]
+    low, high = convergence_range(values, levels)
+    shown = np.clip(values, low, high)
+    outside = np.isfinite(values) & (values > high)
+    axis.plot(index[~outside], shown[~outside], "o", markersize=3, alpha=0.5, label="feasible evaluation")
+    if outside.any():
+        axis.plot(index[outside], shown[outside], "^", markersize=4, alpha=0.5, color="C0",
+                  label=f"feasible, above {high:.4g}")
     axis.step(index, np.where(np.isfinite(running), running, np.nan), where="post", color="C3",
-              label="best so far")
+              linewidth=1.6, label="best so far")
     for k, (name, level) in enumerate((levels or {}).items()):
         axis.axhline(level, linestyle="--", linewidth=1.0, color=f"C{(k + 4) % 10}",
                      label=f"{name} (scored alike)")
-    axis.set_xlabel("evaluation")
+    axis.set_ylim(low, high)
     axis.set_ylabel("objective")
     axis.grid(True, alpha=0.3)
     axis.legend(fontsize="small")
+    if rows == 2:
+        margins = np.array([float(r.get("margin") or 0.0) for r in records])
+        below = axes[1, 0]
+        below.plot(index[infeasible], margins[infeasible], "x", color="grey", markersize=4,
+                   label="infeasible evaluation")
+        below.axhline(0.0, color="black", linewidth=0.8)
+        below.set_ylabel("constraint margin\n(> 0: broken)", fontsize="small")
+        below.grid(True, alpha=0.3)
+        below.legend(fontsize="small")
+    axes[-1, 0].set_xlabel("evaluation")
     figure.tight_layout()
     return _save(figure, path, dpi=110)
+
+
+def convergence_range(values: np.ndarray, levels: Mapping[str, float] | None = None) -> tuple[float, float]:
+    """The objective axis of a convergence figure: from the best feasible value to the worst
+    baseline (or the median feasible value, when higher), widened by a tenth on each side."""
+    finite = values[np.isfinite(values)]
+    marks = [float(v) for v in (levels or {}).values() if np.isfinite(v)]
+    if not len(finite) and not marks:
+        return 0.0, 1.0
+    best = [float(finite.min()), float(np.median(finite))] if len(finite) else []
+    low, top = min(best[:1] + marks), max(best[1:] + marks)
+    span = max(top - low, 1e-9 * max(abs(top), 1.0))
+    return low - 0.1 * span, top + 0.1 * span
 
 
 def figure_of_runs(traces: Mapping[str, Trace], title: str = "",
