@@ -1,7 +1,11 @@
 """The ``furuta-cosim`` command: parses, dispatches, and turns errors into one clear line.
 
-Heavy modules are imported inside the handlers so that ``--help`` stays instant. Exit codes:
-0 success, 1 a check or requirement failed, 2 bad input.
+Heavy modules are imported inside the handlers so that ``--help`` stays instant. Exit codes,
+the same for every command: 0 success; 1 a check failed (a requirement, a regression, a run
+that stopped early, an FMU that fails validation); 2 bad input (one line per problem naming
+the file and key, or the flag); 130 and 143 interrupted or terminated (nothing half-written);
+141 the reader of the output went away; 75 a run stopped that ``--resume`` continues. A
+warning (``WARN``: a run that never settles) is printed and does not change the code.
 """
 
 from __future__ import annotations
@@ -9,6 +13,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import textwrap
 
 from furuta_cosim.documents import dumps
 from furuta_cosim.errors import ConfigError
@@ -219,6 +224,8 @@ def _print_table(scenario, results, document) -> None:
     for name in names:
         if entries[name]["failure"]:
             print(f"FAIL  {name}: the run {entries[name]['failure']}")
+        for warning in entries[name].get("warnings", []):
+            print(f"WARN  {name}: {warning}")
         for text, verdict in entries[name]["requirements"].items():
             value = verdict["value"]
             shown = "no finite value" if value is None else format(value, ".6g")
@@ -490,7 +497,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
-        description="Co-simulation toolchain for the Furuta pendulum and other underactuated plants.")
+        description="Co-simulation toolchain for the Furuta pendulum and other underactuated plants.",
+        epilog=textwrap.fill("exit codes: " + " ".join(__doc__.split("the same for every command: ", 1)[1]
+                                                       .replace("``", "").split()), 88),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     from furuta_cosim import __version__
 
     parser.add_argument("--version", action="version", version=f"furuta-cosim {__version__}")

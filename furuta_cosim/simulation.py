@@ -6,6 +6,8 @@ The command-line interface only formats what :func:`simulate_scenario` returns.
 
 from __future__ import annotations
 
+import math
+
 import json
 from pathlib import Path
 from typing import Callable, Sequence
@@ -118,6 +120,7 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     results, entries, written = {}, {}, []
     for result in runs(prepared, compiled, progress=progress):
         entry = result.save(out, every=every, trace=traces)
+        entry["warnings"] = concerns(result.metrics)
         if entry["trace"]:
             written.append(Path(entry["trace"]).name)
         results[result.controller], entries[result.controller] = result, entry
@@ -140,6 +143,20 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     for name in earlier - set(document["files"]):
         (out / name).unlink(missing_ok=True)  # an earlier run's file this run did not write
     return document, results
+
+
+def concerns(metrics: dict) -> list[str]:
+    """What a run that went to its end did wrong without breaking a requirement: an output
+    that never settles (the loop oscillates, or drifts off), with its size and the input's."""
+    found = []
+    for key, value in metrics.items():
+        signal, _, name = key.rpartition(".")
+        if name == "SettlingTime" and (value is None or not math.isfinite(value)):
+            peak, u = metrics.get(f"{signal}.max_abs"), metrics.get("u.peak_abs")
+            found.append(f"{signal} never settles (peak |{signal}| {peak:.4g}"
+                         + (f", peak |u| {u:.4g}" if u is not None else "") + ")"
+                         if peak is not None else f"{signal} never settles")
+    return found
 
 
 # what simulate writes besides metrics.json: a CSV trace per controller (header ``t,...``), a
