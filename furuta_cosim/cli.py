@@ -212,8 +212,10 @@ def _print_table(scenario, results, document) -> None:
     from furuta_cosim.metrics import table_keys
 
     first = next(iter(results.values())).trace
-    keys = table_keys(first.tracked, first.watched()) + [r.metric for r in scenario.requirements]
     entries = document["controllers"]
+    recorded = {key for entry in entries.values() for key in entry["metrics"]}
+    steps = sum(1 for k in range(1, 100) if f"{first.tracked}.step{k}.RiseTime" in recorded)
+    keys = table_keys(first.tracked, first.watched(), steps) + [r.metric for r in scenario.requirements]
     names = list(entries)
     rows = [k for k in dict.fromkeys(keys) if any(k in entries[n]["metrics"] for n in names)]
     width = max(len(k) for k in rows) if rows else 10

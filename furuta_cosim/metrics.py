@@ -5,7 +5,9 @@ Keys are ``<signal>.<metric>``:
 - the tracked output (when the reference ends constant): ``RiseTime``, ``SettlingTime``,
   ``SettlingMin``, ``SettlingMax``, ``Overshoot``, ``Undershoot``, ``Peak``, ``PeakTime``,
   ``SteadyStateValue`` of the response since the reference's last change, computed by
-  ``control.step_info`` on the response normalized to a unit step;
+  ``control.step_info`` on the response normalized to a unit step (``Peak``: the extreme in
+  the direction of the change); for a reference of 2 to :data:`MAX_STEPS` steps, the same of
+  each step until the next, as ``<output>.step<k>.<name>``;
 - ``error.IAE``, ``error.ISE``, ``error.ITAE``, ``error.RMS`` of e = r - y (RMS over the
   scenario's error window when it has one);
 - ``u.peak_abs``, ``u.rms``, ``u.energy`` (the integral of u^2);
@@ -36,11 +38,12 @@ ALL_NAMES = tuple(dict.fromkeys(STEP_NAMES + INPUT_METRICS + ERROR_METRICS + OUT
 
 
 def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
-              settles: bool = True) -> dict[str, tuple[str, ...]]:
+              settles: bool = True, steps: int = 0) -> dict[str, tuple[str, ...]]:
     """The metrics a run records, by signal: the one place that says which exist.
 
     ``outputs`` are the plant outputs (the tracked one among them), ``others`` the further
-    recorded signals (disturbance inputs, ``u_command``, estimates). Controller states
+    recorded signals (disturbance inputs, ``u_command``, estimates); ``steps``: how many steps
+    of a piecewise-constant reference get metrics of their own (:func:`step_segments`). Controller states
     ``xc<k>`` have ``max_abs`` too; they depend on the controller, so :func:`problem` accepts
     them by pattern.
     """
@@ -50,6 +53,8 @@ def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
             else OUTPUT_METRICS
     for name in others:
         result.setdefault(name, SIGNAL_METRICS)
+    if settles:
+        result.update({f"{tracked}.step{k}": STEP_NAMES for k in range(1, steps + 1)})
     return result
 
 
@@ -60,10 +65,11 @@ TABLE = {"tracked": ("RiseTime", "SettlingTime", "Overshoot", "Peak"),
          "error": ("IAE", "RMS"), "u": INPUT_METRICS, "watched": OUTPUT_METRICS}
 
 
-def table_keys(tracked: str, watched: Iterable[str] = ()) -> list[str]:
+def table_keys(tracked: str, watched: Iterable[str] = (), steps: int = 0) -> list[str]:
     """The metric keys of :data:`TABLE` for a run tracking ``tracked`` (a table leaves out the
-    ones a run does not record)."""
-    keys = [f"{tracked}.{m}" for m in TABLE["tracked"]]
+    ones a run does not record); with ``steps`` (several steps), each step's."""
+    prefixes = [f"{tracked}.step{k}" for k in range(1, steps + 1)] if steps else [tracked]
+    keys = [f"{prefix}.{m}" for prefix in prefixes for m in TABLE["tracked"]]
     keys += [f"error.{m}" for m in TABLE["error"]] + [f"u.{m}" for m in TABLE["u"]]
     return keys + [f"{name}.{m}" for name in watched for m in TABLE["watched"]]
 
@@ -84,7 +90,7 @@ def problem(metric: str, known: Mapping[str, tuple[str, ...]] | None = None) -> 
     """Why ``metric`` ("<signal>.<name>") is not recorded, or None when it is.
 
     Without ``known`` only the form and the name are checked (any signal may exist)."""
-    signal, dot, name = metric.partition(".")
+    signal, dot, name = metric.rpartition(".")
     if not dot or not signal or not name:
         return f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}"
     if known is None or is_controller_state(signal):
@@ -146,8 +152,24 @@ def step_metrics(t: np.ndarray, y: np.ndarray, y0: float, yfinal: float) -> dict
     for name in STEP_NAMES:
         value = float(info[name])
         result[name] = y0 + value * change if name in scale else value
-    result["Peak"] = float(np.max(np.abs(y)))
+    # the extreme in the direction of the change (a step down peaks at its lowest value), not
+    # the largest |y|, which for a step back toward 0 is where it started
+    result["Peak"] = y0 + float(np.max(normalized)) * change
     return result
+
+
+# a reference with 2 to this many steps gets each step's metrics as well (``<y>.step<k>.*``)
+MAX_STEPS = 20
+
+
+def step_segments(r: np.ndarray) -> list[tuple[int, int]]:
+    """The samples ``[begin, end)`` after each change of a piecewise-constant reference
+    (empty when it changes more than :data:`MAX_STEPS` times: a ramp, a sine)."""
+    changes = np.nonzero(np.abs(np.diff(r)) > 0)[0]
+    if not 2 <= len(changes) <= MAX_STEPS:
+        return []
+    begins = list(changes + 1)
+    return list(zip(begins, begins[1:] + [len(r)]))
 
 
 def regulation_settling(t: np.ndarray, y: np.ndarray) -> float | None:
@@ -181,6 +203,12 @@ def _compute(trace, settles: bool, error_window) -> dict[str, float]:
         step = step_metrics(t[begin:], y[begin:], float(y[begin]), float(r[-1]))
         for name, value in (step or {}).items():
             metrics[f"{trace.tracked}.{name}"] = value
+        # several steps: each one's response too, until the next step (the unprefixed ones
+        # are the last step's)
+        for k, (first, end) in enumerate(step_segments(r), start=1):
+            step = step_metrics(t[first:end], y[first:end], float(y[first]), float(r[first]))
+            for name, value in (step or {}).items():
+                metrics[f"{trace.tracked}.step{k}.{name}"] = value
     e = r - y
     for name, value in _integrals(t, e, dt).items():
         metrics[f"error.{name}"] = value

@@ -151,11 +151,13 @@ def concerns(metrics: dict) -> list[str]:
     found = []
     for key, value in metrics.items():
         signal, _, name = key.rpartition(".")
+        if ".step" in signal:
+            continue  # one step of several: the table shows each
         if name == "SettlingTime" and (value is None or not math.isfinite(value)):
             peak, u = metrics.get(f"{signal}.max_abs"), metrics.get("u.peak_abs")
-            found.append(f"{signal} never settles (peak |{signal}| {peak:.4g}"
+            found.append(f"{signal} does not settle by the end of the run (peak |{signal}| {peak:.4g}"
                          + (f", peak |u| {u:.4g}" if u is not None else "") + ")"
-                         if peak is not None else f"{signal} never settles")
+                         if peak is not None else f"{signal} does not settle by the end of the run")
     return found
 
 

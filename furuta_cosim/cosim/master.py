@@ -29,7 +29,7 @@ from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 from furuta_cosim.fmu.session import SESSIONS, model_description
 from furuta_cosim.fmu.variables import declared_conversion, is_real, settable_start
-from furuta_cosim.metrics import catalogue, problem
+from furuta_cosim.metrics import catalogue, problem, step_segments
 from furuta_cosim.scenario import Scenario
 from furuta_cosim.signals import COMMAND, estimate, is_controller_state, start_parameter
 
@@ -231,7 +231,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     # step metrics need a step to measure: a reference that changes, or one away from the start
     stepped = scenario.reference.settles and len(rbar) > 2 and (
         bool(np.any(np.diff(rbar) != 0)) or abs(rbar[0] - scenario.initial.get(tracked, 0.0)) > 1e-12)
-    known = catalogue(tracked, signals, others, stepped)
+    known = catalogue(tracked, signals, others, stepped, len(step_segments(rbar)) if stepped else 0)
     for k, requirement in enumerate(scenario.requirements):
         wrong = problem(requirement.metric, known)
         if wrong:
