@@ -147,7 +147,16 @@ def resolve_file(name: str | Path, folder: Path, kind: str, *, beside: Path | No
         if candidate.is_file():
             return candidate
     known = sorted({p.stem for place in folders for p in place.glob("*.yaml")} | set(also))
-    raise ConfigError([f"{name}: no such {kind} file or name (known: {', '.join(known)})"])
+    raise ConfigError([f"{name}: no such {kind} file or name (known: {', '.join(known)})"
+                       f"{did_you_mean(str(name), known)}"])
+
+
+def did_you_mean(name: str, known) -> str:
+    """``; did you mean 'x'?`` for the closest of ``known`` to a misspelt ``name``, or ''."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 class Frozen(Mapping):
@@ -206,7 +215,8 @@ class Checker:
         allowed = set(required) | set(optional)
         for name in value:
             if name not in allowed:
-                self.fail(_join(key, name), f"unknown key (expected one of: {', '.join(sorted(allowed))})")
+                self.fail(_join(key, name), f"unknown key (expected one of: {', '.join(sorted(allowed))})"
+                                            f"{did_you_mean(str(name), allowed)}")
         for name in required:
             if name not in value:
                 self.fail(_join(key, name), "missing")
@@ -257,7 +267,8 @@ class Checker:
             self.fail(key, f"expected a non-empty string, got {_kind(value)}")
             return None
         if choices and value not in choices:
-            self.fail(key, f"expected one of {', '.join(choices)}, got {excerpt(value)}")
+            self.fail(key, f"expected one of {', '.join(choices)}, got {excerpt(value)}"
+                           f"{did_you_mean(value, choices)}")
             return None
         return value
 

@@ -1,12 +1,10 @@
 """Malformed scenario files: one clear line naming file, key and expectation; exit 2."""
 
 import pytest
-
-from furuta_cosim.references import KINDS
+from helpers import run_cli
 
 from furuta_cosim.cli import main
-
-from helpers import run_cli
+from furuta_cosim.references import KINDS
 
 BASE = """\
 plant: {model: furuta, initial: {theta1: 0.1}}
@@ -129,3 +127,17 @@ def test_all_problems_of_a_file_are_reported_at_once(tmp_path, capsys):
     for expected in ("extra: unknown key", "timing.duration: must be > 0", "timing.control_period: must be > 0",
                      "controllers: expected at least one controller"):
         assert expected in err
+
+
+@pytest.mark.parametrize("edit_from, edit_to, expected", [
+    ("duration: 0.1", "duraton: 0.1", "timing.duraton: unknown key (expected one of: communication_step, "
+                                      "control_period, delay, duration); did you mean 'duration'?"),
+    ("type: constant, value: 0", "type: sinus, amplitude: 1, period: 1",
+     "got 'sinus'; did you mean 'sine'?"),
+    ("controllers: [lqr-paper]", "controllers: [lqr-papr]", "; did you mean 'lqr-paper'?"),
+])
+def test_a_misspelt_name_gets_a_did_you_mean(tmp_path, capsys, edit_from, edit_to, expected):
+    path = tmp_path / "s.yaml"
+    path.write_text(BASE.replace(edit_from, edit_to))
+    code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path / "out"))
+    assert code == 2 and expected in err, err
