@@ -110,7 +110,11 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     and it needs no noise, disturbances, estimator or actuator limit of the master's: those
     are the Python master's."""
     from furuta_cosim.cosim.master import prepare
-    from furuta_cosim.fmu.check import run_ecos_connected
+    from furuta_cosim.fmu.check import ecos_available, run_ecos_connected
+
+    missing = ecos_available()
+    if missing:
+        raise ConfigError([f"ecos_closed_loop runs the Ecos engine: {missing}"])
 
     prepared = prepare(scenario)
     scenario = prepared.scenario

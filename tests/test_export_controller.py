@@ -89,3 +89,16 @@ def test_a_bad_timing_delay_is_one_line(tmp_path, capsys, value):
     path.write_text(text.replace("  control_period: 0.002", f"  control_period: 0.002\n  delay: {value}"))
     code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path / "o"))
     assert code == 2 and f"{path}: timing.delay: expected 0 or 1" in err
+
+
+def test_the_ecos_loop_without_ecos_is_one_error_naming_the_extra(monkeypatch):
+    from furuta_cosim import export
+    from furuta_cosim.errors import ConfigError
+    from furuta_cosim.fmu import check
+    from furuta_cosim.scenario import load_scenario
+
+    monkeypatch.setattr(check, "ecos_available",
+                        lambda: "ecospy is not installed (the ecos extra: pip install -e '.[ecos]')")
+    with pytest.raises(ConfigError, match=r"ecos_closed_loop runs the Ecos engine: ecospy is not installed "
+                                          r"\(the ecos extra"):
+        export.ecos_closed_loop(load_scenario("paper-step"), "lqr-paper", delay=1)

@@ -42,7 +42,7 @@ def ecos_available() -> str | None:
     try:
         import ecospy  # noqa: F401  (loads the engine's shared library)
     except ImportError:
-        return "ecospy is not installed (pip install ecospy)"
+        return "ecospy is not installed (the ecos extra: pip install -e '.[ecos]')"
     except OSError as error:
         return f"ecospy cannot load its engine ({error}); install Debian's libtbb12"
     return None
