@@ -61,7 +61,11 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
         document["best"] = {"index": best["index"], "objective": best["objective"],
                             "origin": best.get("origin") or "", "parameters": best["parameters"],
                             "metrics": best["metrics"], "file": "best.yaml",
-                            "prefilter": prefilter}
+                            "prefilter": prefilter,
+                            "controller": _matrices(load_controller(folder / "best.yaml").controller)}
+    if spec.objective.type != "spectral":
+        # the plant FMUs the scores came from, by content: a rebuilt FMU shows as another hash
+        document["fmus"] = {prepared.fmu.name: _sha256(prepared.fmu) for _, prepared, _ in evaluator.runs()}
     if len(spec.variants) > 1 and spec.objective.type == "scenarios":
         document["variants"] = _variant_spread(evaluator, document)
     if spec.objective.type == "tradeoff":
@@ -73,6 +77,17 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
     write_text(folder / "summary.md", summary_text(spec, document))
     return document
+
+
+def _matrices(controller) -> dict:
+    return {"Ac": controller.Ac.tolist(), "Bc": controller.Bc.tolist(), "Cc": controller.Cc.tolist(),
+            "Dc": controller.Dc.tolist(), "period": controller.period}
+
+
+def _sha256(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def summary_text(spec: TuningSpec, document: dict) -> str:
@@ -95,8 +110,14 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         lines.append(f"Best: objective {best['objective']:.6g} at evaluation {best['index']}, "
                      f"from {origin} (best.yaml" + (f", prefilter F = {F['F']:.6g} for {F['output']}"
                                                     if F else "") + ").")
+        matrices = best.get("controller") or {}
+        for key in ("Ac", "Bc", "Cc", "Dc"):
+            if key in matrices:
+                lines.append(f"- {key} = " + _matrix(matrices[key]))
     else:
         lines.append("No feasible controller was found.")
+    for name, digest in (document.get("fmus") or {}).items():
+        lines.append(f"- plant FMU {name}: sha256 {digest}")
     if document.get("variants"):
         lines.append(f"Over the {len(spec.variants)} plant variants, each scored alone (the "
                      "objective on that variant's scenarios):")
@@ -185,3 +206,7 @@ def _run_by_run(spec: TuningSpec, tuned: dict, baseline: dict, name: str) -> lis
 
 def _cell(value) -> str:
     return "never" if value is None else format(value, ".4g")
+
+
+def _matrix(rows) -> str:
+    return "[" + "; ".join(" ".join(f"{v:.6g}" for v in row) for row in rows) + "]"
