@@ -74,3 +74,22 @@ def test_the_parameter_check_finds_an_undocumented_one():
             A.
         """
     assert _documented(inspect.getdoc(f)) == {"a"}
+
+
+def test_a_recorded_benchmark_shows_as_stale_once_the_code_it_measures_changed(tmp_path):
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import docs_hooks
+    finally:
+        sys.path.pop(0)
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                          text=True, check=True).stdout.strip()
+    first = subprocess.run(["git", "rev-list", "--max-parents=0", "HEAD"], cwd=ROOT, capture_output=True,
+                           text=True, check=True).stdout.split()[0][:12]
+    for name, commit in (("fresh", head), ("old", first)):
+        (tmp_path / f"{name}.txt").write_text(f"command: python tools/bench_x.py\ncommit: {commit}\n"
+                                              "measures: furuta_cosim\n\n| a | b |\n")
+    fresh = docs_hooks.benchmark("fresh", tmp_path)
+    assert "Stale" not in fresh and f"Recorded at commit `{head}` by `python tools/bench_x.py`" in fresh
+    old = docs_hooks.benchmark("old", tmp_path)
+    assert old.startswith('!!! warning "Stale"') and "run `python tools/bench_x.py` again" in old

@@ -79,10 +79,11 @@ def readme_section(heading: str) -> str:
     return match.group(1).strip() + "\n"
 
 
-def benchmark(name: str) -> str:
-    """A recorded benchmark output: its header lines ``command:``, ``commit:``, ``measures:``
-    (the paths whose change makes the figures stale), then the output as printed."""
-    path = ROOT / "docs" / "benchmarks" / f"{name}.txt"
+def benchmark(name: str, folder: Path = ROOT / "docs" / "benchmarks") -> str:
+    """A recorded benchmark output (tools/record.py): its header lines ``command:``,
+    ``commit:``, ``measures:`` (the paths whose change makes the figures stale), then the
+    output as printed."""
+    path = folder / f"{name}.txt"
     head, _, body = path.read_text().partition("\n\n")
     fields = dict(line.split(": ", 1) for line in head.splitlines())
     command, commit = fields["command"], fields["commit"]
