@@ -12,8 +12,25 @@ import pytest  # noqa: E402
 from furuta_cosim.fmu.exporter import build_fmu  # noqa: E402
 from helpers import FOREIGN, build_foreign  # noqa: E402 - the fixtures build foreign FMUs
 
+
+
+# a test whose call takes longer than this is marked slow (``-m "not slow"`` is the quick
+# loop); .ci/run sets FURUTA_COSIM_CHECK_SLOW=1, and the run fails on one that is not
+SLOW_LIMIT = 5.0
+_UNMARKED: list[tuple[str, float]] = []
+
+
+def pytest_runtest_logreport(report):
+    if report.when == "call" and report.duration > SLOW_LIMIT and "slow" not in report.keywords:
+        _UNMARKED.append((report.nodeid, report.duration))
+
+
 def pytest_sessionfinish(session, exitstatus):
     shutil.rmtree(os.environ["FURUTA_COSIM_CACHE"], ignore_errors=True)
+    if _UNMARKED and os.environ.get("FURUTA_COSIM_CHECK_SLOW") == "1":
+        lines = "\n".join(f"  {nodeid}: {seconds:.1f} s" for nodeid, seconds in _UNMARKED)
+        print(f"\n{len(_UNMARKED)} test(s) over {SLOW_LIMIT:g} s not marked slow:\n{lines}")
+        session.exitstatus = 1
 
 
 @pytest.fixture(scope="session")

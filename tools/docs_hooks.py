@@ -3,7 +3,8 @@ code, so that they cannot drift from it.
 
 - ``<!-- commands -->`` becomes the reference of every command, from the CLI's own parser
   (the text ``--help`` prints).
-- ``<!-- reference-kinds -->`` becomes the table of the registered reference kinds.
+- ``<!-- reference-kinds -->``, ``<!-- optimizer-methods -->``, ``<!-- fmi-versions -->``
+  become the tables of those registries.
 - ``<!-- readme: HEADING -->`` becomes that section of the README (the set-up commands are
   written once, in the README).
 - ``<!-- benchmark: NAME -->`` becomes the recorded output of a benchmark,
@@ -19,7 +20,8 @@ import subprocess
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-_MARK = re.compile(r"<!-- (commands|readme|benchmark|reference-kinds)(?:: ([^>]+?))? -->")
+_MARK = re.compile(r"<!-- (commands|readme|benchmark|reference-kinds|optimizer-methods|fmi-versions)"
+                   r"(?:: ([^>]+?))? -->")
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
@@ -33,6 +35,10 @@ def _expand(kind: str, argument: str) -> str:
         return readme_section(argument)
     if kind == "reference-kinds":
         return reference_kinds()
+    if kind == "optimizer-methods":
+        return optimizer_methods()
+    if kind == "fmi-versions":
+        return fmi_versions()
     return benchmark(argument)
 
 
@@ -70,6 +76,26 @@ def reference_kinds() -> str:
     return "\n".join(rows) + "\n"
 
 
+def optimizer_methods() -> str:
+    """A table of the registered optimizer methods."""
+    from furuta_cosim.tuning.methods import METHODS
+
+    rows = ["| method | what | a tradeoff objective |", "| --- | --- | --- |"]
+    rows += [f"| `{name}` | {m.description} | {'no' if m.one_number else 'yes'} |" for name, m in METHODS.items()]
+    return "\n".join(rows) + "\n"
+
+
+def fmi_versions() -> str:
+    """A table of the registered FMI versions."""
+    from furuta_cosim.fmu.session import SESSIONS
+    from furuta_cosim.fmu.versions import VERSIONS
+
+    rows = ["| FMI | binaries | C glue | session class |", "| --- | --- | --- | --- |"]
+    rows += [f"| {name} | `binaries/{v.platform}/` | {', '.join(v.glue)} | `{SESSIONS[name].__name__}` |"
+             for name, v in VERSIONS.items()]
+    return "\n".join(rows) + "\n"
+
+
 def readme_section(heading: str) -> str:
     """The README's ``## HEADING`` section, without its heading."""
     text = (ROOT / "README.md").read_text()
@@ -87,10 +113,14 @@ def benchmark(name: str, folder: Path = ROOT / "docs" / "benchmarks") -> str:
     head, _, body = path.read_text().partition("\n\n")
     fields = dict(line.split(": ", 1) for line in head.splitlines())
     command, commit = fields["command"], fields["commit"]
-    stale = _changed_since(commit, fields.get("measures", "furuta_cosim fmu_src").split())
+    # ``checked: COMMIT WHAT``: a long benchmark checked later to reproduce (WHAT says how)
+    checked, _, how = fields.get("checked", "").partition(" ")
+    since = checked or commit
+    stale = _changed_since(since, fields.get("measures", "furuta_cosim fmu_src").split())
     note = (f"!!! warning \"Stale\"\n    The code these figures measure changed in {stale} commit(s) "
-            f"after {commit}; run `{command}` again.\n\n" if stale else "")
-    return (f"{note}Recorded at commit `{commit}` by `{command}`:\n\n```text\n{body.rstrip()}\n```\n")
+            f"after {since}; run `{command}` again.\n\n" if stale else "")
+    also = f"; checked at `{checked}`: {how}" if checked else ""
+    return (f"{note}Recorded at commit `{commit}` by `{command}`{also}:\n\n```text\n{body.rstrip()}\n```\n")
 
 
 def _changed_since(commit: str, paths: list[str]) -> int:
