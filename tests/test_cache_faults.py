@@ -46,6 +46,7 @@ def test_a_truncated_helper_is_rebuilt(tmp_path, warm):
 
 
 @pytest.mark.parametrize("damage", ["garbage binary", "truncated"])
+@pytest.mark.slow
 def test_a_damaged_cached_fmu_is_rebuilt(tmp_path, warm, damage):
     (fmu,) = warm.glob("Furuta-*.fmu")
     if damage == "truncated":

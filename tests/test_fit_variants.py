@@ -90,6 +90,7 @@ def test_a_spec_draws_its_variants_and_its_plant_from_the_fit(tmp_path):
         load_spec(spec)
 
 
+@pytest.mark.slow
 def test_a_robust_tuning_reports_each_controllers_worst_variant(tmp_path, capsys):
     from helpers import run_cli
 

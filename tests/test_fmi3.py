@@ -49,6 +49,7 @@ def run(path):
         return prepared, session, evaluate(prepared, session, "lqr-paper")
 
 
+@pytest.mark.slow
 def test_the_fmi3_pendulum_runs_paper_step_as_its_fmi2_twin(fmi3):
     prepared, session, result = run(fmi3 / "step3.yaml")
     _, _, twin = run(fmi3 / "step2.yaml")
@@ -61,6 +62,7 @@ def test_the_fmi3_pendulum_runs_paper_step_as_its_fmi2_twin(fmi3):
     assert prepared.units["theta1"] == "rad" and prepared.units["dtheta1"] == "rad/s"
 
 
+@pytest.mark.slow
 def test_simulate_and_regress_take_the_fmi3_plant(fmi3, tmp_path, capsys):
     code, out, err = run_cli(capsys, "simulate", str(fmi3 / "step3.yaml"), "--controller", "lqr-paper",
                              "-o", str(tmp_path / "run"), "--json")
@@ -73,6 +75,7 @@ def test_simulate_and_regress_take_the_fmi3_plant(fmi3, tmp_path, capsys):
     assert [c.status for c in report.cases] == ["pass", "pass"], [c.lines() for c in report.cases]
 
 
+@pytest.mark.slow
 def test_tune_takes_the_fmi3_plant(fmi3, tmp_path, capsys):
     spec = tmp_path / "spec.yaml"
     spec.write_text(f"""\
@@ -143,6 +146,7 @@ def test_a_mapping_that_leaves_a_state_out_is_one_line(fmi3, tmp_path, capsys):
     assert code == 2 and err.strip() == f"error: {mapping}: states: the FMU's states current are not mapped"
 
 
+@pytest.mark.slow
 def test_the_kalman_scenario_runs_on_the_fmi3_plant_and_is_unfit_for_a_cosimulation_only_one(
         fmi3, foreign_fmu, tmp_path):
     mapping = tmp_path / "mapping.yaml"

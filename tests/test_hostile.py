@@ -539,6 +539,7 @@ def test_a_huge_reference_is_refused_and_a_blown_up_run_prints_no_warning(tmp_pa
     assert "Warning" not in result.stderr and "Traceback" not in result.stderr, result.stderr
 
 
+@pytest.mark.slow
 def test_temporary_folders_of_gone_processes_are_swept(tmp_path):
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True).stdout.strip()
@@ -640,6 +641,7 @@ def test_resuming_a_finished_run_keeps_its_times(stopped_run, tmp_path, capsys):
     assert after["evaluation_seconds"] == pytest.approx(before["evaluation_seconds"], rel=1e-12)
 
 
+@pytest.mark.slow
 def test_an_interrupted_tune_says_how_to_resume(tmp_path):
     run = tmp_path / "run"
     # Ctrl-C's default action, whatever the launching shell set (a background job ignores it)

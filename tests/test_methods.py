@@ -34,6 +34,7 @@ def sobol(monkeypatch):
     return Sobol
 
 
+@pytest.mark.slow
 def test_a_new_method_is_one_class(sobol, tmp_path):
     spec = load_spec("effort")
     document = tune(spec, tmp_path / "run", method="sobol", n_calls=4)

@@ -74,6 +74,7 @@ def _history(folder):
             for line in (folder / "history.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_tune_for_another_plant_compares_with_that_plants_lqr(capsys, tmp_path):
     from furuta_cosim.tuning.spec import load_spec
 
@@ -120,6 +121,7 @@ def test_tune_on_a_plant_of_another_model_names_the_scenario(capsys, tmp_path):
     assert "objective.scenarios[0]" in err and "runs the toy plant" in err, err
 
 
+@pytest.mark.slow
 def test_a_run_directory_travels_with_its_plant(capsys, tmp_path):
     work = tmp_path / "lab"
     (work / "plants").mkdir(parents=True)

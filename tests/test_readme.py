@@ -72,6 +72,7 @@ def test_the_docs_python_examples_run_as_written(index, tmp_path, monkeypatch):
     exec(compile(block, where, "exec"), {"__name__": "readme"})  # noqa: S102
 
 
+@pytest.mark.slow
 def test_the_readme_every_key_tuning_spec_runs(tmp_path):
     from furuta_cosim.tuning.run import tune
     from furuta_cosim.tuning.spec import load_spec

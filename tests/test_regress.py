@@ -92,6 +92,7 @@ def test_a_missing_baseline_fails_and_says_how_to_make_it(tmp_path, capsys):
     assert code == 1 and "REGRESSION step / mine: no baseline at" in out and "--update" in out
 
 
+@pytest.mark.slow
 def test_the_fmu_rebuilt_by_fmpy_compile_passes(tmp_path, furuta_fmu, capsys):
     rebuilt = tmp_path / "Furuta.fmu"
     shutil.copy(furuta_fmu, rebuilt)
@@ -286,6 +287,7 @@ def test_regress_passes_under_other_blas_kernels():
         assert diverging and diverging[0]["checked"] >= 10, diverging
 
 
+@pytest.mark.slow
 def test_a_new_metric_fails_no_shipped_baseline_and_update_adds_only_its_lines(tmp_path, capsys, monkeypatch):
     """Open-world baselines: a metric added to the code (here error.ITSE) is a note on every
     baseline that lacks it, and --update adds its line to each of them, nothing else."""

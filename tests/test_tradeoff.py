@@ -183,6 +183,7 @@ def test_a_tradeoff_run_writes_its_front(tmp_path, capsys):
     assert (folder / "report.html").read_text().count("<svg") == 2
 
 
+@pytest.mark.slow
 def test_a_front_file_reruns_to_its_criteria(tmp_path, capsys):
     """Each front file carries what the scoring used: simulate gives back its criteria."""
     tune(load_spec(spec_file(tmp_path)), tmp_path / "run", workers=1)
@@ -205,6 +206,7 @@ def strip(records):
 
 
 @pytest.mark.parametrize("method, front", [("bo", "auto"), ("bo", "parego"), ("random", "auto")])
+@pytest.mark.slow
 def test_a_tradeoff_history_depends_on_neither_workers_nor_an_interruption(tmp_path, method, front):
     spec = load_spec(spec_file(tmp_path, SPEC.replace("batch: 2}", f"batch: 2, front: {front}}}")))
     tune(spec, tmp_path / "one", method=method, workers=1)
@@ -292,6 +294,7 @@ def test_a_relative_term_counts_every_run_alike(tmp_path):
     assert effort.objective == pytest.approx(1.1, rel=1e-12) and effort.feasible
 
 
+@pytest.mark.slow
 def test_fronts_of_two_runs_on_one_figure(tmp_path, capsys):
     spec = load_spec(spec_file(tmp_path))
     tune(spec, tmp_path / "a", workers=1)

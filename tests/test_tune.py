@@ -281,6 +281,7 @@ def batched(tmp_path, batch=3):
 
 
 @pytest.mark.parametrize("method", ["bo", "random", "de"])
+@pytest.mark.slow
 def test_the_history_depends_on_neither_the_workers_nor_an_interruption(tmp_path, method):
     """Workers change only the speed: one history for 1 and 2 workers; a run cut after any
     evaluation (in the design, in the middle of a batch, at a batch's end) and resumed writes
@@ -340,6 +341,7 @@ def test_baselines_and_initial_controllers_start_the_search(tmp_path):
     assert f"from {document['best']['origin']} (best.yaml, prefilter F = " in summary
 
 
+@pytest.mark.slow
 def test_the_best_file_reruns_to_its_recorded_metrics(tmp_path, capsys):
     """best.yaml carries everything the scoring used, the prefilter included: simulate of each
     scenario of the spec reproduces the metrics recorded for that evaluation (1e-9)."""

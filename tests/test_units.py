@@ -98,6 +98,7 @@ def run(path):
 
 
 @pytest.mark.parametrize("name", ["scaled", "declared"])
+@pytest.mark.slow
 def test_the_degree_pendulum_runs_paper_step_as_the_radian_one(degrees, name):
     _, reference = run(degrees / "paper-step-radians.yaml")
     prepared, result = run(degrees / f"paper-step-{name}.yaml")
@@ -119,6 +120,7 @@ def test_declared_units_give_the_view_its_si_units(degrees):
     assert "theta1" not in scaled.units  # a scale alone says nothing of the unit
 
 
+@pytest.mark.slow
 def test_without_conversion_the_degree_pendulum_is_another_experiment(degrees):
     """The check has teeth: read as radians, the same FMU falls over."""
     path = degrees / "paper-step-plain.yaml"
@@ -150,6 +152,7 @@ def test_a_state_without_a_start_is_named(degrees, tmp_path, capsys):
             "of theta1 and its output 'pend_angle' takes no start value") in err
 
 
+@pytest.mark.slow
 def test_regress_notes_the_degree_pendulums_extra_output_until_it_is_ignored(degrees, tmp_path):
     from furuta_cosim.regression import regress
 
