@@ -54,3 +54,16 @@ def test_no_test_imports_from_conftest():
     offenders = [p.name for p in sorted((ROOT / "tests").glob("*.py"))
                  if re.search(r"^\s*(from conftest import|import conftest)", p.read_text(), re.M)]
     assert not offenders, offenders
+
+
+def test_the_parser_imports_no_heavy_module():
+    """--help and the CLI's choices (which read the registries) stay instant: building the
+    parser imports neither numpy nor the FMU, tuning or plotting libraries."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from furuta_cosim.cli import build_parser; build_parser(); "
+            "print(' '.join(sorted(m for m in ('numpy', 'scipy', 'fmpy', 'matplotlib', 'sklearn', 'yaml') "
+            "if m in sys.modules)))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert loaded == [], loaded

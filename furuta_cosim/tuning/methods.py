@@ -14,12 +14,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, ClassVar
+from typing import TYPE_CHECKING, Callable, ClassVar
 
-import numpy as np
+if TYPE_CHECKING:
+    from furuta_cosim.tuning.history import History
 
-from furuta_cosim.tuning.history import History, record, replayed
-
+# this module is light to import (the CLI's parser reads METHODS for --optimizer): numpy, the
+# history and the optimizers come in when a search runs
 METHODS: dict[str, type[Method]] = {}
 
 
@@ -53,6 +54,8 @@ class Run:
     def collect(self, xs, pending, origins, surrogate=None) -> list[float]:
         """Wait for a batch's outcomes (the evaluation clock: time spent waiting), record them
         and report progress."""
+        from furuta_cosim.tuning.history import record
+
         started = time.perf_counter()
         outcomes = self.executor.gather(pending) if pending else []
         self.clock["evaluation"] += time.perf_counter() - started
@@ -112,6 +115,7 @@ class Bayes(Method):
 
     def search(self, run: Run) -> None:
         from furuta_cosim.tuning import pareto
+        from furuta_cosim.tuning.history import replayed
         from furuta_cosim.tuning.mobo import HypervolumeBO
         from furuta_cosim.tuning.optimizers import ConstrainedBO, batches
 
@@ -189,6 +193,7 @@ class DifferentialEvolution(Method):
     one_number = True
 
     def search(self, run: Run) -> None:
+        import numpy as np
         from scipy.optimize import differential_evolution
 
         replay = list(run.records)
