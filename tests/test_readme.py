@@ -96,3 +96,22 @@ def test_the_docs_python_examples_paste_into_the_interactive_prompt(index):
         pending.append(line)
         if codeop.compile_command("\n".join(pending), "<stdin>", "single") is not None:
             pending = []
+
+
+@pytest.mark.slow
+def test_the_quick_starts_next_five_commands_run_as_written(tmp_path, monkeypatch, capsys):
+    """After the main job (here a short one into the same folder), each of the README's next
+    five commands runs as written and succeeds."""
+    import shlex
+
+    from helpers import run_cli, section
+
+    block = re.findall(r"```sh\n(.*?)```", section((ROOT / "README.md").read_text(), "Quick start"), re.S)[1]
+    commands = [shlex.split(line.split("#", 1)[0]) for line in block.strip().splitlines()]
+    assert len(commands) == 5 and all(c[0] == "furuta-cosim" for c in commands)
+    monkeypatch.chdir(tmp_path)
+    assert run_cli(capsys, "tune", "effort", "--n-calls", "4", "--workers", "1")[0] == 0
+    for argv in commands:
+        code, out, err = run_cli(capsys, *argv[1:])
+        assert code == 0, (argv, out[-2000:], err[-2000:])
+    assert (tmp_path / "effort.fmu").is_file()
