@@ -108,7 +108,27 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     loop: ``(t, {signal: values})`` at the control instants, the fed-back states and the
     applied input (``u``). The scenario's reference must be constant (it is the FMU's ``r``),
     and it needs no noise, disturbances, estimator or actuator limit of the master's: those
-    are the Python master's."""
+    are the Python master's.
+
+    Parameters
+    ----------
+    scenario : Scenario, str or path
+        A scenario name, file or loaded scenario.
+    controller : str or path
+        The controller's FMU (from ``export-controller``).
+    delay : int, optional
+        Control periods between a measurement and the input it causes (1, the default, is
+        the master's one-step delay).
+
+    Returns
+    -------
+    tuple of (ndarray, dict)
+
+    Raises
+    ------
+    ConfigError
+        When Ecos is not installed (the ``ecos`` extra) or the scenario needs the master.
+    """
     from furuta_cosim.cosim.master import prepare
     from furuta_cosim.fmu.check import ecos_available, run_ecos_connected
 

@@ -21,9 +21,20 @@ from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.plants import load_plant
 
 def load_model(name: str | Path = "paper-printed", beside: Path | None = None) -> LinearModel:
-    """Resolve a model name or file to a :class:`LinearModel` (see the module docstring);
-    ``beside``: the folder of the file that names it, where names and relative paths are
-    looked up first."""
+    """Resolve a model name or file to a :class:`LinearModel` (see the module docstring).
+
+    Parameters
+    ----------
+    name : str or path, optional
+        A plant name or file, ``derived[:<parameter set>]``, or ``file.fmu[#mapping.yaml]``
+        (linearized). The default is the paper's printed model.
+    beside : path, optional
+        The folder of the file that names it, where names and relative paths are looked up first.
+
+    Returns
+    -------
+    LinearModel
+    """
     text = str(name)
     fmu, _, mapping = text.partition("#")
     if fmu.endswith(".fmu"):

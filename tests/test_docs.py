@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from helpers import PAGES, ROOT
+from helpers import PAGES, ROOT, python_blocks
 
 API = re.findall(r"^::: (\S+)$", (PAGES / "api.md").read_text(), re.M)
 
@@ -55,13 +55,44 @@ def _documented(docstring: str) -> set[str]:
     return set(re.findall(r"^\s{0,8}(\w+)\s*(?::|$)", section.group(1), re.M)) if section else set()
 
 
+def _resolve(name: str):
+    module, attribute = name.rsplit(".", 1)
+    return getattr(importlib.import_module(module), attribute)
+
+
+def _imported_by_the_docs() -> set[str]:
+    names = set()
+    for _, code in python_blocks():
+        for module, items in re.findall(r"^from (furuta_cosim[\w.]*) import ([\w, ]+)$", code, re.M):
+            names |= {f"{module}.{item.strip()}" for item in items.split(",")}
+    return names
+
+
+def test_every_name_the_docs_import_is_on_the_api_page():
+    on_page = {id(_resolve(name)) for name in API}
+    missing = sorted(name for name in _imported_by_the_docs() if id(_resolve(name)) not in on_page)
+    assert not missing, f"imported in the docs but not in docs/pages/api.md: {missing}"
+
+
+def _with_methods(name: str):
+    obj = _resolve(name)
+    yield name, obj
+    if inspect.isclass(obj):
+        for attribute, value in vars(obj).items():
+            if isinstance(value, (classmethod, staticmethod)):
+                value = value.__func__
+            if not attribute.startswith("_") and inspect.isfunction(value):
+                yield f"{name}.{attribute}", value
+
+
 @pytest.mark.parametrize("name", API)
 def test_every_parameter_of_the_api_is_documented(name):
-    module, function = name.rsplit(".", 1)
-    obj = getattr(importlib.import_module(module), function)
-    parameters = [p for p in inspect.signature(obj).parameters if p not in ("self", "cls")]
-    missing = [p for p in parameters if p not in _documented(inspect.getdoc(obj) or "")]
-    assert not missing, f"{name}: undocumented parameter(s) {missing}"
+    for where, obj in _with_methods(name):
+        doc = inspect.getdoc(obj)
+        assert doc, f"{where}: no docstring"
+        parameters = [p for p in inspect.signature(obj).parameters if p not in ("self", "cls")]
+        missing = [p for p in parameters if p not in _documented(doc)]
+        assert not missing, f"{where}: undocumented parameter(s) {missing}"
 
 
 def test_the_parameter_check_finds_an_undocumented_one():

@@ -58,12 +58,26 @@ def compile_controller(prepared: Prepared, controller, *, key: str | None = None
 
     Parameters
     ----------
+    prepared : Prepared
+        The scenario the controller is to run in, from :func:`prepare`.
     controller : Compiled, ControllerFile, GeneralizedController, str or path
         A name of ``scenarios/controllers`` or a file; a relative file is taken beside
-        ``beside`` when given (the scenario's folder, for the scenario's own controllers).
+        ``beside`` when given. A ``Compiled`` is returned as it is.
     key : str, optional
         Where the controller was named, for messages (``controllers[1]``, ``--controller``).
-        Problems are ConfigErrors naming the scenario, that key, the controller file and its key.
+    beside : path, optional
+        The folder relative controller files are read from (the scenario's folder, for the
+        scenario's own controllers).
+
+    Returns
+    -------
+    Compiled
+        The controller's checked matrices and generated step code.
+
+    Raises
+    ------
+    ConfigError
+        Naming the scenario, ``key``, the controller file and its key.
     """
     if isinstance(controller, Compiled):
         return controller
@@ -111,9 +125,24 @@ def evaluate(prepared: Prepared, session, controller, *,
     """Run ``controller`` through the prepared scenario on ``session`` (reset here): the trace,
     its metrics, the requirement verdicts, why it stopped early if it did, and the wall time.
 
-    ``progress(k, steps)`` is called every :data:`CHUNK` samples when given.
     A plant that gives up (a diverging loop) ends the run early; the result keeps its samples
     and says why in ``failure``.
+
+    Parameters
+    ----------
+    prepared : Prepared
+        The scenario, from :func:`prepare`.
+    session : PlantSession
+        An open session on ``prepared.fmu``; it is reset before the run.
+    controller : Compiled, ControllerFile, GeneralizedController, str or path
+        Anything :func:`compile_controller` takes.
+    progress : callable, optional
+        ``progress(k, steps)``, called every :data:`CHUNK` samples.
+
+    Returns
+    -------
+    RunResult
+        Trace, metrics, requirement verdicts, ``failure`` and wall time.
     """
     started = time.perf_counter()
     compiled = compile_controller(prepared, controller)

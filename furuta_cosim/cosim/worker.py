@@ -143,7 +143,19 @@ def session_for(prepared: Prepared):
 
 def evaluate_here(prepared: Prepared, controller) -> RunResult:
     """:func:`~furuta_cosim.cosim.evaluation.evaluate` on this process's session, keeping the
-    first copy of each prepared scenario (so its estimator is compiled once)."""
+    first copy of each prepared scenario (so its estimator is compiled once).
+
+    Parameters
+    ----------
+    prepared : Prepared
+        The scenario; a copy with the same key seen before in this process is used instead.
+    controller : Compiled, ControllerFile, GeneralizedController, str or path
+        Anything :func:`~furuta_cosim.cosim.evaluation.compile_controller` takes.
+
+    Returns
+    -------
+    RunResult
+    """
     prepared = _PREPARED.setdefault(prepared.key, prepared)
     return evaluate(prepared, session_for(prepared), controller)
 

@@ -22,7 +22,32 @@ from furuta_cosim.errors import DesignError
 
 @dataclass(frozen=True)
 class GeneralizedController:
-    """Ac (n_xc x n_xc), Bc (n_xc x n_x), Cc (n_u x n_xc), Dc (n_u x n_x); period 0 = continuous."""
+    """The paper's generalized dynamic state feedback ``xc' = Ac xc + Bc x``, ``u = Cc xc + Dc x``
+    (a difference equation when ``period`` > 0). Matrices are checked for shape and finiteness
+    and frozen.
+
+    Parameters
+    ----------
+    Ac : array_like, n_xc x n_xc
+        Controller state matrix; empty for a static gain.
+    Bc : array_like, n_xc x n_x
+        Plant state to controller state.
+    Cc : array_like, n_u x n_xc
+        Controller state to input.
+    Dc : array_like, n_u x n_x
+        Direct feedback (``-K`` for a static gain).
+    period : float, optional
+        Sampling period in seconds; 0 (the default) is continuous time.
+    name : str, optional
+        Used in messages and reports.
+    provenance : dict, optional
+        Where the controller came from (a design, a tuning run); not compared.
+
+    Raises
+    ------
+    DesignError
+        Naming the controller and the matrix that does not fit.
+    """
 
     Ac: np.ndarray
     Bc: np.ndarray
@@ -64,7 +89,23 @@ class GeneralizedController:
 
     @classmethod
     def static(cls, K, period: float = 0.0, name: str = "", provenance: dict | None = None):
-        """Static state feedback u = r - K x."""
+        """Static state feedback ``u = r - K x``.
+
+        Parameters
+        ----------
+        K : array_like, n_u x n_x
+            The gain.
+        period : float, optional
+            Sampling period in seconds; 0 is continuous time.
+        name : str, optional
+            Used in messages and reports.
+        provenance : dict, optional
+            Where the gain came from.
+
+        Returns
+        -------
+        GeneralizedController
+        """
         K = np.atleast_2d(np.asarray(K, dtype=float))
         return cls(np.zeros((0, 0)), np.zeros((0, K.shape[1])), np.zeros((K.shape[0], 0)), K,
                    period, name, provenance or {})
@@ -83,6 +124,17 @@ class GeneralizedController:
         return self.Dc
 
     def check_fits(self, model: LinearModel) -> None:
+        """Refuse a controller whose state and input counts are not the model's.
+
+        Parameters
+        ----------
+        model : LinearModel
+            The plant the controller is to close the loop on.
+
+        Raises
+        ------
+        DesignError
+        """
         if self.Dc.shape != (model.B.shape[1], model.n):
             raise DesignError(f"controller {self.name or '?'} is for {self.Dc.shape[1]} states and "
                               f"{self.Dc.shape[0]} input(s); model {model.name} has {model.n} "

@@ -30,7 +30,26 @@ def dc_gain(model: LinearModel, controller: GeneralizedController, output: str) 
 
 
 def prefilter(model: LinearModel, controller: GeneralizedController, output: str) -> float:
-    """F with unit steady-state gain from rbar to ``output``; DesignError when singular."""
+    """The static prefilter F that gives unit steady-state gain from rbar to ``output``.
+
+    Parameters
+    ----------
+    model : LinearModel
+        A single-input plant.
+    controller : GeneralizedController
+        The feedback the loop is closed with.
+    output : str
+        The tracked output (a state name of ``model``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    DesignError
+        When the loop's DC gain to ``output`` is zero or not finite.
+    """
     if model.B.shape[1] != 1:
         raise DesignError("prefilter: only single-input plants are supported")
     gain = dc_gain(model, controller, output)

@@ -239,6 +239,8 @@ class PlantSession:
         The loaded FMU; :meth:`open` creates one that the session owns.
     interface : {"CoSimulation", "ModelExchange"}
         Model exchange serves linearization (states in, derivatives out).
+    name : str, optional
+        The instance name passed to the FMU.
     """
 
     VERSION = "2.0"
@@ -294,12 +296,33 @@ class PlantSession:
 
     @staticmethod
     def for_binary(binary: FmuBinary, interface: str = "CoSimulation", name: str = "plant") -> "PlantSession":
-        """A session of the class for the binary's FMI version (:data:`SESSIONS`)."""
+        """A session of the class for the binary's FMI version (:data:`SESSIONS`).
+
+        Parameters
+        ----------
+        binary : FmuBinary
+            The loaded FMU; the caller keeps it and closes it.
+        interface : {"CoSimulation", "ModelExchange"}, optional
+        name : str, optional
+            The instance name passed to the FMU.
+        """
         return SESSIONS[binary.version](binary, interface, name)
 
     @classmethod
     def open(cls, fmu: str | Path, interface: str = "CoSimulation") -> "PlantSession":
-        """Extract and load ``fmu`` for this session alone; :meth:`close` removes it again."""
+        """Extract and load ``fmu`` for this session alone; :meth:`close` removes it again.
+
+        Parameters
+        ----------
+        fmu : path
+            An FMI 2.0 or 3.0 FMU.
+        interface : {"CoSimulation", "ModelExchange"}, optional
+
+        Returns
+        -------
+        PlantSession
+            Of the class for the FMU's version; a context manager.
+        """
         binary = FmuBinary(fmu)
         try:
             session = cls.for_binary(binary, interface)
@@ -349,8 +372,12 @@ class PlantSession:
     def reset(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0) -> None:
         """Return to the FMU's start values, apply ``parameters`` and initialize at ``start_time``.
 
-        ``parameters`` may name any parameter or input, and any variable whose start value an
-        importer may set (``initial`` exact or approx); ``<state>_start`` sets initial states.
+        Parameters
+        ----------
+        parameters : mapping of str to float, optional
+            Any parameter or input, and any variable whose start value an importer may set
+            (``initial`` exact or approx); ``<state>_start`` sets initial states.
+        start_time : float, optional
         """
         self._usable()
         lib, c = self._lib, self._c
@@ -408,7 +435,15 @@ class PlantSession:
         return reals, integers
 
     def set_io(self, inputs: Sequence[str] = (), outputs: Sequence[str] = ()) -> None:
-        """Choose the inputs :meth:`step` takes and the outputs it returns, in that order."""
+        """Choose the inputs :meth:`step` takes and the outputs it returns, in that order.
+
+        Parameters
+        ----------
+        inputs : sequence of str
+            Real input variables.
+        outputs : sequence of str
+            Real variables read after each step.
+        """
         self._usable()
         self.inputs, self.outputs = list(inputs), list(outputs)
         self._n_in, self._n_out = len(self.inputs), len(self.outputs)
@@ -435,6 +470,18 @@ class PlantSession:
         """Set the chosen inputs, advance by ``h`` and return the chosen outputs.
 
         Time is kept as ``t0 + k*h`` while ``h`` stays the same, so it does not drift.
+
+        Parameters
+        ----------
+        inputs : sequence of float
+            Values of the inputs chosen with :meth:`set_io`.
+        h : float
+            Communication step size.
+
+        Returns
+        -------
+        list of float
+            The chosen outputs at the end of the step.
         """
         if self._n_in == 1:
             self._in[0] = inputs[0]
@@ -467,7 +514,12 @@ class PlantSession:
 
     # -- any variable, any time ------------------------------------------------------------
     def get(self, names: Iterable[str]) -> list[float]:
-        """Current values of Real or Integer variables."""
+        """Current values of Real or Integer variables.
+
+        Parameters
+        ----------
+        names : iterable of str
+        """
         self._usable()
         values = []
         for name in names:
@@ -482,7 +534,12 @@ class PlantSession:
         return values
 
     def set(self, values: Mapping[str, float]) -> None:
-        """Set Real inputs between steps."""
+        """Set Real inputs between steps.
+
+        Parameters
+        ----------
+        values : mapping of str to float
+        """
         self._usable()
         reals, integers = self._split(values)
         if integers:
@@ -493,7 +550,13 @@ class PlantSession:
 
     # -- model exchange --------------------------------------------------------------------
     def derivatives(self, x: Sequence[float]) -> list[float]:
-        """f(x, inputs) of a model-exchange session, states ordered as the FMU declares them."""
+        """f(x, inputs) of a model-exchange session.
+
+        Parameters
+        ----------
+        x : sequence of float
+            The continuous states, ordered as the FMU declares them.
+        """
         self._usable()
         self._x[0:self._nx] = x
         self._check(getattr(self._lib, self.SET_X)(self._c, self._x, self._nx), self.SET_X)
@@ -512,6 +575,13 @@ class PlantSession:
         getattr(self._lib, self.FREE_STATE)(self._c, pointer)
 
     def restore_state(self, snapshot: "_Snapshot") -> None:
+        """Return the instance to a state saved with :meth:`save_state`.
+
+        Parameters
+        ----------
+        snapshot : object
+            What :meth:`save_state` returned, on this session.
+        """
         self._usable()
         self._check(getattr(self._lib, self.SET_STATE)(self._c, snapshot.pointer[0]), self.SET_STATE)
         self.time, self._start, self._k = snapshot.time, snapshot.time, 0
