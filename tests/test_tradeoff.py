@@ -311,3 +311,34 @@ def test_fronts_of_two_runs_on_one_figure(tmp_path, capsys):
     assert (tmp_path / "cmp" / "fronts.png").stat().st_size > 0
     code, _, err = run_cli(capsys, "fronts", str(tmp_path / "a"), str(tmp_path / "nothing"))
     assert code == 2 and "no front.json" in err and "Traceback" not in err
+
+
+def test_a_three_criteria_tradeoff_ends_with_its_summary_and_figure(tmp_path, capsys):
+    """ParEGO, the default for three criteria: the run gets its summary and front figure
+    whatever the number of feasible and front points (odd counts once broke a reshape)."""
+    text = SPEC.replace("aggregate: worst}\n", "aggregate: worst}\n"
+                        "    - {name: swing, terms: [{metric: theta1.max_abs}]}\n")
+    text = text.replace("n_calls: 12, n_initial_points: 6", "n_calls: 7, n_initial_points: 5")
+    code, out, err = run_cli(capsys, "tune", str(spec_file(tmp_path, text)), "-o",
+                             str(tmp_path / "run"), "--workers", "1")
+    assert code == 0, err
+    front = json.loads((tmp_path / "run" / "front.json").read_text())
+    assert set(front["points"][0]["criteria"]) == {"effort", "tracking", "swing"}
+    assert (tmp_path / "run" / "summary.md").is_file()
+    assert (tmp_path / "run" / "tradeoff.png").is_file()
+
+
+def test_the_front_figure_shows_the_first_two_of_three_criteria(tmp_path, monkeypatch):
+    from furuta_cosim.report import figures
+
+    feasible = [[1.0, 10.0, 100.0], [2.0, 20.0, 200.0], [3.0, 30.0, 300.0]]  # an odd count
+    shown = {}
+    close = figures.plt.close
+
+    def remember(figure):
+        shown["x"], shown["y"] = figure.axes[0].get_xlim(), figure.axes[0].get_ylim()
+        close(figure)
+    monkeypatch.setattr(figures.plt, "close", remember)
+    figures.plot_tradeoff(feasible, feasible[:1], 0, ["a", "b", "c"], {}, tmp_path / "f")
+    assert shown["x"][0] < 1.0 < 3.0 < shown["x"][1] < 4.0
+    assert shown["y"][0] < 10.0 < 30.0 < shown["y"][1] < 40.0

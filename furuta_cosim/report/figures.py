@@ -227,7 +227,8 @@ def plot_tradeoff(feasible: Sequence[Sequence[float]], front: Sequence[Sequence[
         axis.plot(front[knee][0], front[knee][1], "*", markersize=14, color="C3", label="knee")
     # the axes span the evaluations (a baseline far outside them is named, not drawn: one
     # diverging controller must not squash the front into a corner)
-    shown = [np.asarray(p, dtype=float).reshape(-1, 2) for p in
+    # rows hold every criterion; the figure shows the first two
+    shown = [np.asarray(p, dtype=float)[:, :2] for p in
              [feasible, front, *((fronts or {}).values())] if len(p)]
     box = np.vstack(shown) if shown else np.ones((1, 2))
     low, high = box.min(axis=0), box.max(axis=0)
