@@ -3,6 +3,12 @@
 Each writer writes a temporary file beside the target (``.<name>.<random>.partial``, created
 exclusively, so a file or link planted there is never followed) and renames it; on any
 failure, Ctrl-C or SIGTERM included, the temporary file is removed.
+
+Nothing is written through a symbolic link under an output folder. :func:`folder` makes (or
+takes) the folder a command writes into, the one the user named; below it, every folder a
+writer makes or enters is checked and a link is refused with one line, whichever writer it is
+(:func:`atomic` checks the target's folders, :func:`folder` the folders it makes). A link the
+user named as the output folder itself is theirs, and is used.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from furuta_cosim.errors import ConfigError
 def atomic(path: str | Path) -> Iterator[Path]:
     """``with atomic(target) as partial:`` write ``partial``; it becomes ``target`` at the end."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make(path.parent)
     # named before it exists, so that an interruption at any point still removes it; created
     # exclusively under a name no one can guess, so nothing planted there is ever followed
     partial = path.with_name(f".{path.name}.{secrets.token_hex(8)}.partial")
@@ -35,6 +41,52 @@ def atomic(path: str | Path) -> Iterator[Path]:
         os.replace(partial, path)  # replaces a link at ``path`` itself, never its target
     finally:
         partial.unlink(missing_ok=True)
+
+
+_ROOTS: set[Path] = set()  # the output folders of this process: links below them are refused
+
+
+def folder(path: str | Path, *, root: bool = False) -> Path:
+    """Make ``path`` (and its parents) if needed and return it. With ``root``, ``path`` is an
+    output folder the user named: what is below it is checked by every writer. Otherwise the
+    folders from the nearest output folder down to ``path`` must not be links.
+
+    Parameters
+    ----------
+    path : path
+        The folder.
+    root : bool, optional
+        Register ``path`` as an output folder.
+
+    Raises
+    ------
+    ConfigError
+        When a folder on the way is a symbolic link, or not a folder.
+    """
+    path = Path(path)
+    if root:
+        _ROOTS.add(Path(os.path.abspath(path)))
+    _make(path)
+    return path
+
+
+def _make(path: Path) -> None:
+    absolute = Path(os.path.abspath(path))
+    roots = [r for r in _ROOTS if absolute == r or r in absolute.parents]
+    if roots:
+        probe = max(roots, key=lambda r: len(r.parts))
+        probe.mkdir(parents=True, exist_ok=True)
+        for part in absolute.relative_to(probe).parts:
+            probe = probe / part
+            if probe.is_symlink():
+                raise ConfigError([f"{probe}: is a symbolic link; nothing is written through a link "
+                                   "under an output folder (remove it, or choose another folder)"])
+            try:
+                probe.mkdir(exist_ok=True)
+            except FileExistsError:
+                raise ConfigError([f"{probe}: exists and is not a folder"]) from None
+    else:
+        path.mkdir(parents=True, exist_ok=True)
 
 
 def write_text(path: str | Path, text: str) -> Path:
@@ -52,9 +104,13 @@ def copy(source: str | Path, path: str | Path) -> Path:
 def output_file(path: str | Path, flag: str = "output") -> Path:
     """Check before any work that ``path`` can be written as a file: one line otherwise."""
     path = Path(path)
+    if path.is_symlink():
+        raise ConfigError([f"{flag} {path}: {path.name} is a symbolic link; nothing is written "
+                           "through a link (remove it, or name another file)"])
     if path.is_dir():
         raise ConfigError([f"{flag} {path}: is a folder; name a file"])
     writable_folder(path.parent, flag, path)
+    _ROOTS.add(Path(os.path.abspath(path.parent)))
     return path
 
 
@@ -64,7 +120,24 @@ def output_folder(path: str | Path, flag: str = "output") -> Path:
     if path.exists() and not path.is_dir():
         raise ConfigError([f"{flag} {path}: exists and is not a folder"])
     writable_folder(path, flag, path)
+    links = _links_below(path) if path.is_dir() else []
+    if links:
+        raise ConfigError([f"{flag} {path}: {link} is a symbolic link; nothing is written through "
+                           "a link under an output folder (remove it, or choose another folder)"
+                           for link in links[:10]])
+    _ROOTS.add(Path(os.path.abspath(path)))
     return path
+
+
+def _links_below(path: Path) -> list[Path]:
+    """The symbolic links under ``path`` (not followed), in a stable order."""
+    found = []
+    for top, folders, names in os.walk(path):
+        for name in sorted(folders + names):
+            if os.path.islink(os.path.join(top, name)):
+                found.append(Path(top, name).relative_to(path))
+        folders[:] = sorted(f for f in folders if not os.path.islink(os.path.join(top, f)))
+    return found
 
 
 def writable_folder(folder: Path, flag: str, named: Path) -> None:

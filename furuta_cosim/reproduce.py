@@ -19,7 +19,7 @@ import numpy as np
 from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.design.lqr import PAPER_Q, PAPER_R
 from furuta_cosim.documents import dumps
-from furuta_cosim.files import output_folder, write_text
+from furuta_cosim.files import copy, output_folder, write_text
 
 BUDGETS = {"quick": 30, "full": 150}
 READINGS = "docs/pages/paper-readings.md"
@@ -397,15 +397,14 @@ def reproduce(output: str | Path, *, budget: str = "quick", workers: int = 1,
         runs[name] = document
         for path in document["figures"]:
             if str(path).endswith(".svg"):
-                figures.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(path, figures / Path(path).name)
+                copy(path, figures / Path(path).name)
     claims += toy_claims(runs)
     log("paper-step with the Table's friction")
     claims += pendulum_claims(runs, friction_runs()) + sine_claims()
     calls = BUDGETS[budget]
     log(f"tuning paper-spectral ({calls} calls)")
     spectral = _tuned(load_spec("paper-spectral"), out / "tuning" / "paper-spectral", calls, 0, workers)
-    shutil.copyfile(out / "tuning" / "paper-spectral" / "convergence.svg", figures / "convergence-paper-spectral.svg")
+    copy(out / "tuning" / "paper-spectral" / "convergence.svg", figures / "convergence-paper-spectral.svg")
     families = {}
     for name in ("tradeoff", "tradeoff-static"):
         spec = load_spec(name)

@@ -16,7 +16,7 @@ from furuta_cosim.cosim.evaluation import runs, scenario_controllers
 from furuta_cosim.cosim.master import prepare
 from furuta_cosim.documents import dumps
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.files import output_folder, write_text
+from furuta_cosim.files import folder, output_folder, write_text
 from furuta_cosim.scenario import Scenario
 
 
@@ -116,7 +116,7 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     named = plant_names(prepared)
     if named:
         log(f"  on {prepared.fmu.name}: {named}")
-    out.mkdir(parents=True, exist_ok=True)
+    folder(out)
     results, entries, written = {}, {}, []
     for result in runs(prepared, compiled, progress=progress):
         entry = result.save(out, every=every, trace=traces)

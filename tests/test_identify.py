@@ -13,41 +13,9 @@ from furuta_cosim.identify.fit import autocorrelation_time, fit, sandwich
 from furuta_cosim.identify.replay import target_for
 from furuta_cosim.identify.spec import load_identify_spec
 
-from helpers import run_cli
+from helpers import QUANTUM, TRUE, run_cli, synthetic_log as _synthetic
 
 ROOT = Path(__file__).resolve().parent.parent
-QUANTUM = 2 * math.pi / 2048
-TRUE = {"R_a": 7.9, "M_f": 0.040, "I_a": 1.2e-4, "C0": 6.0e-4}
-
-
-def _synthetic(folder: Path, seed: int = 0) -> Path:
-    """A 3 s PRBS voltage on the QUBE plant with known parameters, logged as a 2048-count
-    encoder and a current sensor with 4 mA of noise."""
-    rng = np.random.default_rng(seed)
-    h, n = 0.002, 1501
-    t = np.arange(n) * h
-    V = np.repeat(rng.choice([-3.0, 3.0], size=n // 25 + 1), 25)[:n]
-    target = target_for(plant="qube-servo-3")
-    from furuta_cosim.fmu.session import PlantSession
-
-    with PlantSession.open(target.fmu) as session:
-        session.reset(parameters={**TRUE, "theta1_start": math.pi})  # hanging, as the log says
-        session.set_io(inputs=["V"], outputs=["theta0", "i"])
-        rows = [session.get(["theta0", "i"])] + [session.step([v], h) for v in V[:-1]]
-    y = np.array(rows)
-    theta = np.round(y[:, 0] / QUANTUM) * QUANTUM
-    current = y[:, 1] + rng.normal(0.0, 0.004, n)
-    (folder / "prbs.csv").write_text("t,V,theta,I\n" + "".join(
-        f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(t.tolist(), V.tolist(), theta.tolist(), current.tolist())))
-    (folder / "prbs.yaml").write_text(
-        "data: prbs.csv\ncolumns: [t, V, theta, I]\ntime: t\ninputs: {V: {column: V}}\n"
-        f"outputs:\n  theta0: {{column: theta, quantum: {QUANTUM!r}}}\n  i: {{column: I, noise: 0.004}}\n"
-        "start: {theta0: 0.0, dtheta0: 0.0, theta1: 3.141592653589793, dtheta1: 0.0, i: 0.0}\n")
-    spec = folder / "spec.yaml"
-    spec.write_text("name: synthetic\nplant: qube-servo-3\nexperiments: [prbs.yaml]\nfree:\n"
-                    "  R_a: {start: 6.0, bounds: [1.0, 30.0]}\n  M_f: {start: 0.05, bounds: [0.005, 0.2]}\n"
-                    "  I_a: {start: 2.0e-4, bounds: [1.0e-6, 1.0e-2]}\n  C0: {start: 2.0e-4, bounds: [0.0, 1.0e-2]}\n")
-    return spec
 
 
 @pytest.mark.slow

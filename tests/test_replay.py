@@ -83,7 +83,7 @@ def test_a_foreign_fmu_that_returns_nan_fails_the_replay(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_the_fit_on_dask_equals_the_fit_here(tmp_path):
-    from test_identify import _synthetic
+    from helpers import synthetic_log as _synthetic
 
     from furuta_cosim.identify.fit import fit
     from furuta_cosim.identify.spec import load_identify_spec

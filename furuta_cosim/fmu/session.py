@@ -26,6 +26,7 @@ from fmpy.model_description import ModelDescription
 
 from furuta_cosim.errors import FmuError
 from furuta_cosim.files import temporary_folder
+from furuta_cosim.fmu.archive import check_archive
 from furuta_cosim.fmu.compiler import build_helper
 from furuta_cosim.fmu.variables import settable_start
 from furuta_cosim.signals import start_parameter
@@ -125,6 +126,7 @@ _FATAL = 4  # fmi2Fatal (and fmi2Pending, which nothing here asks for): the inst
 @functools.lru_cache(maxsize=64)
 def _read(path: str, _stamp: tuple) -> ModelDescription:
     # ``_stamp`` (size and mtime) only keys the cache: a changed file is read again
+    check_archive(path)
     try:
         return fmpy.read_model_description(path)
     except Exception as error:  # fmpy raises bare Exceptions for malformed FMUs
@@ -139,6 +141,7 @@ def model_description(fmu: str | Path) -> ModelDescription:
 
 def _extract(fmu: Path) -> Path:
     """Unzip what an importer needs (the platform binary and resources) into a new folder."""
+    check_archive(fmu)
     folder = temporary_folder("fmu")
     wanted = (f"binaries/{fmpy.platform}/", f"binaries/{fmpy.platform_tuple}/", "resources/")
     try:

@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 import yaml
 
 from furuta_cosim.documents import dumps
-from furuta_cosim.files import output_folder, write_text
+from furuta_cosim.files import folder, output_folder, write_text
 from furuta_cosim.identify.experiment import Experiment, load_experiment
 from furuta_cosim.identify.fit import FitResult, fit, with_values
 from furuta_cosim.identify.replay import (SimulationFailed, Target, check_names, compare,
@@ -113,7 +113,7 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         + (f"; validation {', '.join(e.name for e in spec.validation)}" if spec.validation else ""))
     result = fit(spec, target, workers=workers, dask=dask, progress=progress, log=log)
     document = result.document()
-    out.mkdir(parents=True, exist_ok=True)
+    folder(out)
     figures = []
     for experiment in spec.experiments + spec.validation:
         pair = result.simulated[experiment.name]

@@ -43,7 +43,6 @@ def _plot_runs(traces, path, title, signals, time_unit) -> list[Path]:
 def _save(figure, path: str | Path, dpi: int) -> list[Path]:
     """The figure as ``path``.png and .svg (atomically), closed afterwards."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     written = []
     try:
         for suffix in (".png", ".svg"):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from furuta_cosim import __version__
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.files import write_text
+from furuta_cosim.files import output_file, write_text
 from furuta_cosim.report.html import figure, markdown_to_html, page
 
 KINDS = {"metrics.json": "simulate", "summary.json": "tune", "regress.json": "regress",
@@ -139,5 +139,5 @@ def write_report(folder: str | Path, output: str | Path | None = None) -> Path:
     rows = {**{k: v for k, v in provenance.items() if v is not None}, **versions()}
     body.append("<h2>Provenance</h2>")
     body.append(markdown_to_html(_table(["", "value"], [[k, v] for k, v in rows.items()])))
-    target = Path(output) if output else folder / "report.html"
+    target = output_file(output if output else folder / "report.html", "output")
     return write_text(target, page(f"furuta-cosim: {title}", "\n".join(body)))

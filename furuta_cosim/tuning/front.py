@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from furuta_cosim.documents import dumps
-from furuta_cosim.files import write_text
+from furuta_cosim.files import folder as make_folder, write_text
 from furuta_cosim.tuning import pareto
 from furuta_cosim.tuning.saved import save_scored
 
@@ -34,8 +34,7 @@ def write_front(evaluator, folder: Path, records: list[dict], baselines: dict, m
     names = [criterion.name for criterion in spec.objective.criteria]
     on_front = pareto.front_of(records, names)
     points = []
-    files = folder / "front"
-    files.mkdir(exist_ok=True)
+    files = make_folder(folder / "front")
     for rank, k in enumerate(on_front):
         record = records[k]
         file = f"front/{rank:02d}.yaml"
@@ -192,8 +191,7 @@ def compare(folders, out: Path) -> dict:
             "hypervolume": pareto.hypervolume(rows[label], reference) if reference else None,
             "at_baselines": {n: reach(front["points"], names, b["criteria"])
                              for n, b in baselines.items() if b["feasible"]}}
-    out = output_folder(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_folder(output_folder(out))
     plot_tradeoff([], [], None, names, {n: b["criteria"] for n, b in baselines.items()},
                   out / "fronts", title="Pareto fronts", fronts=rows)
     write_text(out / "fronts.json", dumps(document, indent=2) + "\n")

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Callable
 
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.files import output_folder, write_text
+from furuta_cosim.files import folder as make_folder, output_folder, write_text
 from furuta_cosim.tuning.history import History
 from furuta_cosim.tuning.methods import METHODS, Run, method_for
 from furuta_cosim.tuning.objective import Evaluator
@@ -130,7 +130,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
     executor = executor_for(spec, evaluator, workers, dask)  # a Dask scheduler is reached here
     lock = history = None
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folder(folder)
         lock = locked(folder)
         if not resume and (folder / "history.jsonl").exists():  # one that finished meanwhile
             raise ConfigError([f"run_dir {folder}: holds a tuning run already; choose another "
