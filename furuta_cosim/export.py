@@ -131,6 +131,7 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     """
     from furuta_cosim.cosim.master import prepare
     from furuta_cosim.fmu.check import ecos_available, run_ecos_connected
+    from furuta_cosim.fmu.contained import contained
 
     missing = ecos_available()
     if missing:
@@ -159,8 +160,9 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     start = {f"plant::{k}": float(v) for k, v in prepared.start.items() if k in reals}
     start[f"controller::{REFERENCE_INPUT}"] = float(prepared.rbar[0]) if len(prepared.rbar) else 0.0
     names = [f"plant::{outputs[s]}" for s in prepared.states] + [f"plant::{prepared.control_input}"]
-    rows = run_ecos_connected({"plant": prepared.fmu, "controller": fmu}, connections, start,
-                              names, prepared.steps, prepared.control_period)
+    # in a child process: an engine crash is Ecos's verdict (EngineFailed), not ours
+    rows = contained(run_ecos_connected, {"plant": prepared.fmu, "controller": fmu}, connections,
+                     start, names, prepared.steps, prepared.control_period, engine="Ecos", timeout=600)
     signals = {s: rows[:, k] for k, s in enumerate(prepared.states)}
     signals["u"] = rows[:, -1]
     return prepared.t[:len(rows)], signals

@@ -75,6 +75,36 @@ def scheduled_only(source: Path, target: Path) -> Path:
     return target
 
 
+def rewritten(source: Path, target: Path, description=None, extra: dict | None = None) -> Path:
+    """A copy of the FMU ``source`` with its modelDescription.xml passed through
+    ``description`` (text to text) and the zip entries ``extra`` (name: bytes) added."""
+    import zipfile
+
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
+        for name in archive.namelist():
+            data = archive.read(name)
+            if name == "modelDescription.xml" and description:
+                data = description(data.decode()).encode()
+            out.writestr(name, data)
+        for name, data in (extra or {}).items():
+            out.writestr(name, data)
+    return target
+
+
+def with_a_clock(source: Path, target: Path) -> Path:
+    """A copy of the FMI 3.0 FMU ``source`` that declares a Clock input."""
+    return rewritten(source, target, lambda text: text.replace(
+        "<ModelVariables>", '<ModelVariables>\n    <Clock name="tick" valueReference="9999" '
+        'causality="input" intervalVariability="triggered"/>', 1))
+
+
+def crash_with(signal_name: str) -> None:
+    """Kill this process with a signal, as a crashing engine would (for the containment tests)."""
+    import signal
+
+    os.kill(os.getpid(), getattr(signal, signal_name))
+
+
 def run_cli(capsys, *argv):
     """``furuta-cosim ARGV`` in-process: (exit code, stdout, stderr)."""
     from furuta_cosim.cli import main

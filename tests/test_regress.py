@@ -361,3 +361,16 @@ def test_a_signal_the_baseline_lacks_is_a_note_unless_it_is_the_runs_core(tmp_pa
             assert "not in the baseline (regress --update adds it): signal i" in case["notes"]
         else:
             assert case["differences"][0]["name"] == "u" and "missing from the baseline" in case["differences"][0]["got"]
+
+
+@pytest.mark.slow
+def test_worker_processes_leave_nothing_in_the_temporary_directory(tmp_path):
+    """Each worker extracts the FMU into a folder of its own; the folder goes when the worker
+    does, on a normal end too (a pool's workers never run atexit handlers)."""
+    folder = tmp_path / "tmpdir"
+    folder.mkdir()
+    done = subprocess.run([sys.executable, "-m", "furuta_cosim", "regress", "paper-step", "sine",
+                           "noise", "--workers", "2"], capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "TMPDIR": str(folder)})
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in folder.iterdir()) == []

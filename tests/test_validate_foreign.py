@@ -9,7 +9,7 @@ import pytest
 
 from furuta_cosim.cli import main
 
-from helpers import FOREIGN, build_foreign, scheduled_only
+from helpers import FOREIGN, build_foreign, crash_with, rewritten, scheduled_only, with_a_clock
 
 
 @pytest.fixture(scope="module")
@@ -45,9 +45,9 @@ def test_an_fmi3_fmu_is_valid_and_runs_everywhere(exports, capsys):
 
 def test_scheduled_execution_is_named_not_a_traceback(exports, capsys):
     code, out = validate(capsys, exports / "Scheduled.fmu")
-    assert code == 0, out
     assert "skip  smoke run" in out and "scheduled execution, with clocks, is not supported" in out
-    assert out.rstrip().endswith("valid as far as checked (1 check(s) not run)")
+    # nothing here can run it: not "valid as far as checked"
+    assert code == 1 and "nothing can run it" in out and out.rstrip().endswith("problems found"), out
 
 
 def test_fmpy_problems_are_reported_and_the_runs_still_run(foreign_fmu, capsys):
@@ -66,3 +66,79 @@ def test_an_unreadable_model_description_is_a_finding(tmp_path, capsys):
         archive.writestr("modelDescription.xml", "<fmiModelDescription")
     code, out = validate(capsys, broken)
     assert code == 1 and "problems found" in out
+
+
+@pytest.fixture
+def private_tmp(tmp_path, monkeypatch):
+    """TMPDIR of the test's own, to see what a run leaves in it."""
+    import tempfile
+
+    folder = tmp_path / "tmpdir"
+    folder.mkdir()
+    monkeypatch.setenv("TMPDIR", str(folder))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    return folder
+
+
+def test_a_clocked_fmu_is_refused_and_the_other_checks_still_report(exports, tmp_path, private_tmp, capsys):
+    clocked = with_a_clock(exports / "ForeignPendulum3.fmu", tmp_path / "Clocked.fmu")
+    code, out = validate(capsys, clocked)
+    assert code == 1 and out.rstrip().endswith("problems found"), out
+    assert re.search(r"^FAIL +interfaces .*1 clock\(s\): clocked FMUs are refused", out, re.M), out
+    assert re.search(r"^FAIL +smoke run .*clocked FMUs .* are not supported", out, re.M), out
+    # Ecos aborts on a clock (SIGABRT): contained, it is Ecos's verdict and the output is whole
+    assert re.search(r"^FAIL +Ecos .*Ecos crashed on this FMU: SIGABRT$", out, re.M), out
+    assert re.search(r"^ok +fmpy validate", out, re.M) and out.rstrip().endswith("problems found")
+    assert list(private_tmp.iterdir()) == []
+    # the session refuses it as validate-fmu said
+    code = main(["simulate", "paper-step", "--fmu", str(clocked)])
+    err = capsys.readouterr().err
+    assert code == 2 and "clock(s) (tick)" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("entry, problem", [
+    ("../../../../tmp/x", "leaves the FMU's folder"),
+    ("/etc/passwd-copy", "an absolute name"),
+    ("resources\\\\x", "backslash"),
+])
+def test_an_fmu_zip_with_an_unsafe_entry_is_refused_before_extraction(exports, tmp_path, private_tmp,
+                                                                      capsys, entry, problem):
+    hostile = rewritten(exports / "ForeignPendulum3.fmu", tmp_path / "Hostile.fmu", extra={entry: b"x"})
+    code, out = validate(capsys, hostile)
+    assert code == 1 and re.search(rf"^FAIL +zip .*{re.escape(problem)}", out, re.M), out
+    assert list(private_tmp.iterdir()) == [] and not (tmp_path.parent / "x").exists()
+    code = main(["simulate", "paper-step", "--fmu", str(hostile)])
+    err = capsys.readouterr().err
+    assert code == 2 and "refused before extracting anything" in err, err
+
+
+def test_a_symlink_entry_is_refused(exports, tmp_path):
+    from furuta_cosim.errors import FmuError
+    from furuta_cosim.fmu.archive import check_archive
+
+    hostile = tmp_path / "Linked.fmu"
+    rewritten(exports / "ForeignPendulum3.fmu", hostile)
+    with zipfile.ZipFile(hostile, "a") as archive:
+        info = zipfile.ZipInfo("resources/link")
+        info.external_attr = (0o120777 << 16)
+        archive.writestr(info, "/etc")
+    with pytest.raises(FmuError, match="a symbolic link"):
+        check_archive(hostile)
+
+
+@pytest.mark.parametrize("how", ["SIGSEGV", "SIGABRT"])
+def test_an_engine_that_crashes_is_its_verdict_not_ours(how, private_tmp):
+    from furuta_cosim.fmu.contained import EngineFailed, contained
+
+    with pytest.raises(EngineFailed, match=f"^Ecos crashed on this FMU: {how}$"):
+        contained(crash_with, how, engine="Ecos", timeout=60)
+    assert list(private_tmp.iterdir()) == []
+
+
+def test_an_engine_that_hangs_is_stopped(private_tmp):
+    import time
+
+    from furuta_cosim.fmu.contained import EngineFailed, contained
+
+    with pytest.raises(EngineFailed, match="did not finish in 2 s"):
+        contained(time.sleep, 60, engine="fmpy", timeout=2)

@@ -27,7 +27,7 @@ from furuta_cosim.defaults import PAPER_PERIOD, TRACKED_OUTPUT
 from furuta_cosim.errors import ConfigError, DesignError, FmuError, PlantUnfit
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import PlantSet, load_plant
-from furuta_cosim.fmu.session import SESSIONS, model_description
+from furuta_cosim.fmu.session import SESSIONS, model_description, refuse_clocks
 from furuta_cosim.fmu.variables import declared_conversion, is_real, settable_start
 from furuta_cosim.metrics import catalogue, problem, step_segments
 from furuta_cosim.scenario import Scenario
@@ -154,6 +154,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                       if part is not None]
         raise FmuError(f"{fmu_path}: not an FMI {' or '.join(SESSIONS)} co-simulation FMU (FMI {description.fmiVersion}, "
                        f"{' and '.join(interfaces) or 'no interface'}{' only' if interfaces else ''})")
+    refuse_clocks(fmu_path, description)
     variables = {v.name: v for v in description.modelVariables}
     identifier = description.coSimulation.modelIdentifier
     parameters = {n for n, v in variables.items() if v.causality == "parameter"}

@@ -62,7 +62,12 @@ def _watch_parent(parent: int) -> None:
 
 
 def _start_worker(parent: int, setup, setup_args) -> None:
+    import multiprocessing.util
+
     _watch_parent(parent)
+    # a pool's worker ends by os._exit, without atexit handlers; multiprocessing's own exit
+    # finalizers do run there, so the sessions (and their extracted FMUs) close at the end
+    multiprocessing.util.Finalize(None, close_all, exitpriority=10)
     if setup is not None:
         setup(*setup_args)
 

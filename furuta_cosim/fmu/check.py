@@ -2,7 +2,11 @@
 
 ``validate(path)`` returns a list of :class:`Finding` (name, ok, detail); the CLI prints them
 and exits non-zero if any failed. ``run_fmpy`` and ``run_ecos`` run an FMU open loop with
-constant inputs so that their outputs can be compared.
+constant inputs so that their outputs can be compared. In ``validate`` every run of the FMU's
+binary (our smoke run, fmpy's, Ecos's) is contained in a child process
+(:mod:`furuta_cosim.fmu.contained`): a crash or a hang is that check's verdict, the other
+checks still report, and nothing is left in the temporary directory. The zip is checked
+before anything extracts it (:mod:`furuta_cosim.fmu.archive`).
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from furuta_cosim.errors import FmuError
+from furuta_cosim.fmu.archive import check_archive
+from furuta_cosim.fmu.contained import EngineFailed, contained
 from furuta_cosim.fmu.session import FmuBinary, PlantSession, model_description
 from furuta_cosim.fmu.variables import is_real
 
@@ -91,25 +97,39 @@ def run_ecos_connected(fmus: Mapping[str, str | Path], connections: Sequence[tup
     return np.array(rows)
 
 
-def validate(fmu: str | Path) -> list[Finding]:
+def validate(fmu: str | Path, timeout: float = 120.0) -> list[Finding]:
     """fmpy's validation, then a smoke run in our session and in fmpy and a cross-check in Ecos
     of the floating-point outputs, for FMI 2.0 and 3.0. fmpy's problems are reported as such and
     the runs still run: an FMU that fmpy flags may still run, and the user learns both. Never
-    raises: whatever goes wrong is a finding."""
+    raises: whatever goes wrong is a finding; ``timeout`` bounds each contained run (seconds)."""
     fmu = Path(fmu)
     if not fmu.is_file():
         return [Finding("file", False, f"{fmu}: no such file")]
     findings: list[Finding] = []
     try:
-        _validate(fmu, findings)
+        _validate(fmu, findings, timeout)
     except Exception as error:  # an FMU is hostile input: whatever it does becomes a finding
         findings.append(Finding("unexpected", False, f"{type(error).__name__}: {error}"))
     return findings
 
 
-def _validate(fmu: Path, findings: list[Finding]) -> None:
+def smoke_run(fmu: str | Path, outputs: Sequence[str], step: float, steps: int = 100) -> list:
+    """``steps`` steps of ``fmu`` in our session with its start values, the ``outputs`` after each."""
+    with FmuBinary(fmu) as binary:
+        with PlantSession.for_binary(binary) as session:
+            session.reset()
+            session.set_io([], outputs)
+            return [session.step([], step) for _ in range(steps)]
+
+
+def _validate(fmu: Path, findings: list[Finding], timeout: float) -> None:
     from fmpy.validation import validate_fmu
 
+    try:
+        check_archive(fmu)
+    except FmuError as error:
+        findings.append(Finding("zip", False, str(error)))
+        return
     try:
         problems = validate_fmu(str(fmu))
     except Exception as error:  # fmpy raises bare Exceptions
@@ -133,7 +153,10 @@ def _validate(fmu: Path, findings: list[Finding]) -> None:
         name for name, part in (("co-simulation", md.coSimulation), ("model exchange", md.modelExchange),
                                 ("scheduled execution", md.scheduledExecution)) if part is not None)
     clocks = sum(1 for v in variables if v.type == "Clock")
-    findings.append(Finding("interfaces", True, described + (f"; {clocks} clock(s)" if clocks else "")))
+    runnable = md.coSimulation is not None or md.modelExchange is not None
+    findings.append(Finding("interfaces", runnable and not clocks, described
+                            + (f"; {clocks} clock(s): clocked FMUs are refused" if clocks else "")
+                            + ("" if runnable else ": no co-simulation or model exchange, nothing can run it")))
     smoke = "smoke run (100 steps, PlantSession)"
     if md.coSimulation is None:
         findings.append(Finding(smoke, None, "not run: the smoke runs need co-simulation"
@@ -142,37 +165,37 @@ def _validate(fmu: Path, findings: list[Finding]) -> None:
         return
     step = float(md.defaultExperiment.stepSize) if md.defaultExperiment and md.defaultExperiment.stepSize else 1e-3
     try:
-        with FmuBinary(fmu) as binary:
-            with PlantSession.for_binary(binary) as session:
-                session.reset()
-                session.set_io([], outputs)
-                values = [session.step([], step) for _ in range(100)]
+        values = contained(smoke_run, fmu, outputs, step, engine="PlantSession", timeout=timeout)
         finite = all(math.isfinite(v) for row in values for v in row)
         findings.append(Finding(smoke, finite, (f"{len(outputs)} floating-point outputs finite" if finite
                                                 else "non-finite outputs")
                                 + (f" ({unread} outputs not read)" if unread else "")))
     except FmuError as error:
         findings.append(Finding(smoke, False, str(error)))
-        return
-    stop = 100 * step
+    # each engine is asked whatever the one before said: a crash in one is its own verdict
+    stop, reference = 100 * step, None
     try:
-        reference = run_fmpy(fmu, {}, outputs, stop, step)
+        reference = contained(run_fmpy, fmu, {}, outputs, stop, step, engine="fmpy", timeout=timeout)
         findings.append(Finding("fmpy simulate_fmu", bool(np.all(np.isfinite(reference))),
                                 f"{len(reference)} steps"))
-    except Exception as error:  # fmpy raises bare Exceptions
+    except EngineFailed as error:
         findings.append(Finding("fmpy simulate_fmu", False, str(error)))
-        return
     reason = ecos_available()
     if reason:
         findings.append(Finding("Ecos", None, f"not run: {reason}"))
         return
     try:
-        other = run_ecos(fmu, {}, outputs, stop, step)
-        difference = relative_difference(other, reference)
-        findings.append(Finding("Ecos (same run as fmpy)", difference <= 1e-12,
-                                f"max relative difference {difference:.2e} (limit 1e-12)"))
-    except Exception as error:  # ecospy raises bare Exceptions
-        findings.append(Finding("Ecos (same run as fmpy)", False, str(error)))
+        other = contained(run_ecos, fmu, {}, outputs, stop, step, engine="Ecos", timeout=timeout)
+        if reference is None:
+            finite = bool(np.all(np.isfinite(other)))
+            findings.append(Finding("Ecos", finite, f"{len(other)} steps, {'finite' if finite else 'non-finite'} "
+                                    "outputs (fmpy gave nothing to compare with)"))
+        else:
+            difference = relative_difference(other, reference)
+            findings.append(Finding("Ecos (same run as fmpy)", difference <= 1e-12,
+                                    f"max relative difference {difference:.2e} (limit 1e-12)"))
+    except EngineFailed as error:
+        findings.append(Finding("Ecos" if reference is None else "Ecos (same run as fmpy)", False, str(error)))
 
 
 def relative_difference(a: np.ndarray, b: np.ndarray) -> float:

@@ -139,6 +139,14 @@ def model_description(fmu: str | Path) -> ModelDescription:
     return _read(str(fmu), (status.st_mtime_ns, status.st_size))
 
 
+def refuse_clocks(fmu: str | Path, md: ModelDescription) -> None:
+    """Clocked FMUs need event mode or scheduled execution, which nothing here drives."""
+    clocks = [v.name for v in md.modelVariables if v.type == "Clock"]
+    if clocks:
+        raise FmuError(f"{fmu}: declares {len(clocks)} clock(s) ({', '.join(clocks[:3])}); "
+                       "clocked FMUs (event mode, scheduled execution) are not supported")
+
+
 def _extract(fmu: Path) -> Path:
     """Unzip what an importer needs (the platform binary and resources) into a new folder."""
     check_archive(fmu)
@@ -184,6 +192,7 @@ class FmuBinary:
         if interface is None:
             raise FmuError(f"{self.path}: declares no interface (co-simulation, model exchange "
                            "or scheduled execution)")
+        refuse_clocks(self.path, md)
         self.identifier = interface.modelIdentifier
         self.version = md.fmiVersion
         self.directory = _extract(self.path)
