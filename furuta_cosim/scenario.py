@@ -19,6 +19,7 @@ from furuta_cosim import paths
 from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
 from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
 from furuta_cosim.metrics import checked
 from furuta_cosim.references import KINDS, PLAIN
 
@@ -347,8 +348,11 @@ def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapp
                 text = check.string(entry["variable"], f"{where}.variable")
                 scale = check.number(entry.get("scale", 1.0), f"{where}.scale")
                 offset = check.number(entry.get("offset", 0.0), f"{where}.offset")
-                if scale == 0:
-                    check.fail(f"{where}.scale", "must not be 0 (the view's value is scale * FMU value + offset)")
+                if scale is not None and not MIN_FACTOR <= abs(scale) <= MAX_FACTOR:
+                    check.fail(f"{where}.scale", f"expected a magnitude in [{MIN_FACTOR:g}, {MAX_FACTOR:g}] "
+                               f"(the view's value is scale * FMU value + offset), got {scale:g}")
+                elif offset is not None and abs(offset) > MAX_OFFSET:
+                    check.fail(f"{where}.offset", f"expected a magnitude of at most {MAX_OFFSET:g}, got {offset:g}")
                 elif text and scale is not None and offset is not None:
                     conversions[text] = (float(scale), float(offset))
             else:

@@ -53,12 +53,13 @@ UNITS = """<UnitDefinitions>
 """
 
 
-def declare_units(source: Path, target: Path) -> None:
-    """``source`` with deg and deg/s declared on its angles, as a Modelica tool exports them."""
+def declare_units(source: Path, target: Path, units: str = UNITS) -> None:
+    """``source`` with deg and deg/s declared on its angles, as a Modelica tool exports them
+    (``units``: the UnitDefinitions element to declare them with)."""
     with zipfile.ZipFile(source) as archive:
         files = {name: archive.read(name) for name in archive.namelist()}
     text = files["modelDescription.xml"].decode()
-    text = re.sub(r"(</CoSimulation>|<CoSimulation[^>]*/>)", lambda m: m.group(1) + "\n" + UNITS, text, count=1)
+    text = re.sub(r"(</CoSimulation>|<CoSimulation[^>]*/>)", lambda m: m.group(1) + "\n" + units, text, count=1)
     for name, unit in (("arm_angle", "deg"), ("pend_angle", "deg"), ("arm_rate", "deg/s"), ("pend_rate", "deg/s")):
         text, count = re.subn(rf'(<ScalarVariable name="{name}"[^>]*>\s*<Real)', rf'\1 unit="{unit}"', text)
         assert count == 1, name
@@ -138,8 +139,56 @@ def test_a_zero_scale_is_one_line(degrees, tmp_path, capsys):
         "{variable: pend_angle, scale: %r}" % DEG, "{variable: pend_angle, scale: 0}"))
     code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path))
     assert code == 2 and err.strip().splitlines() == [
-        f"error: {path}: plant.mapping.states.theta1.scale: must not be 0 "
-        "(the view's value is scale * FMU value + offset)"]
+        f"error: {path}: plant.mapping.states.theta1.scale: expected a magnitude in [1e-12, 1e+12] "
+        "(the view's value is scale * FMU value + offset), got 0"]
+
+
+@pytest.mark.parametrize("entry, key, expected", [
+    ("scale: 0.017453292519943295, offset: 1.0e+300", "offset", "expected a magnitude of at most 1e+06"),
+    ("scale: 1.0e+300", "scale", "expected a magnitude in [1e-12, 1e+12]"),
+    ("scale: .nan", "scale", "finite"),
+])
+def test_a_mapping_scale_or_offset_out_of_bounds_is_one_line(degrees, tmp_path, capsys, entry, key, expected):
+    """An offset of 1e300 once made theta1 identically 0 in the view, and the run passed."""
+    path = degrees / f"paper-step-{key}.yaml"
+    path.write_text((degrees / "paper-step-scaled.yaml").read_text().replace(
+        "{variable: pend_angle, scale: %r}" % DEG, "{variable: pend_angle, %s}" % entry))
+    code, _, err = run_cli(capsys, "simulate", str(path), "-o", str(tmp_path))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and f"plant.mapping.states.theta1.{key}: " in lines[0], err
+    assert expected in lines[0], err
+
+
+HOSTILE_UNITS = {
+    "factor 0": ('<Unit name="deg"><BaseUnit rad="1" factor="0"/></Unit>', "unit 'deg': factor 0.0"),
+    "factor NaN": ('<Unit name="deg"><BaseUnit rad="1" factor="NaN"/></Unit>', "unit 'deg': factor nan"),
+    "offset 1e300": ('<Unit name="deg"><BaseUnit rad="1" factor="0.0174" offset="1e300"/></Unit>',
+                     "unit 'deg': offset 1e+300"),
+    "defined twice": ('<Unit name="deg"><BaseUnit rad="1" factor="0.0174"/></Unit>'
+                      '<Unit name="deg"><BaseUnit rad="1" factor="1"/></Unit>', "unit 'deg' is defined twice"),
+    "mm on an angle": ('<Unit name="deg"><BaseUnit m="1" factor="0.001"/></Unit>',
+                       "pend_angle is in 'deg', not a unit of rad"),
+}
+
+
+@pytest.mark.parametrize("case", HOSTILE_UNITS)
+def test_a_declared_unit_is_checked_like_a_file(degrees, tmp_path, capsys, case):
+    """simulate refuses it with a line naming the FMU and the unit, and validate-fmu says the
+    same (it once called all of these valid; factor 0 was a ZeroDivisionError)."""
+    definition, expected = HOSTILE_UNITS[case]
+    units = ("<UnitDefinitions>\n" + definition
+             + '\n<Unit name="deg/s"><BaseUnit rad="1" s="-1" factor="0.017453292519943295"/></Unit>'
+             + "\n</UnitDefinitions>\n")
+    declare_units(degrees / "DegreePendulum.fmu", tmp_path / "DeclaredPendulum.fmu", units)
+    scenario = tmp_path / "paper-step-declared.yaml"
+    scenario.write_text((degrees / "paper-step-declared.yaml").read_text())
+    code, _, err = run_cli(capsys, "simulate", str(scenario), "-o", str(tmp_path / "out"))
+    assert code == 2 and "Traceback" not in err, err
+    assert any(str(tmp_path / "DeclaredPendulum.fmu") in line and expected in line
+               for line in err.splitlines()), err
+    if case != "mm on an angle":  # the FMU alone cannot tell which quantity a variable is
+        code, out, _ = run_cli(capsys, "validate-fmu", str(tmp_path / "DeclaredPendulum.fmu"))
+        assert code == 1 and re.search(rf"^FAIL +units .*{re.escape(expected)}", out, re.M), out
 
 
 def test_a_state_without_a_start_is_named(degrees, tmp_path, capsys):

@@ -28,7 +28,7 @@ from furuta_cosim.errors import ConfigError, DesignError, FmuError, PlantUnfit
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import PlantSet, load_plant
 from furuta_cosim.fmu.session import SESSIONS, model_description, refuse_clocks
-from furuta_cosim.fmu.variables import declared_conversion, is_real, settable_start
+from furuta_cosim.fmu.variables import declared_conversion, dimension_problem, is_real, settable_start, unit_problems
 from furuta_cosim.metrics import catalogue, problem, step_segments
 from furuta_cosim.scenario import Scenario
 from furuta_cosim.signals import COMMAND, estimate, is_controller_state, start_parameter
@@ -172,8 +172,11 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                      if low is not None and high is not None else f"expected a whole number, got {value:g}")
         start[name] = value
 
+    problems += [f"{fmu_path}: {problem}" for problem in unit_problems(description)]
     view = _view(scenario, variables, identifier, fail)
     outputs, signals, states, state_outputs, control_input, inputs, disturbance_names = view
+    problems += _dimensions(description, variables, plant, fmu_path, scenario.mapping,
+                            {**dict(zip(signals, outputs)), **inputs, "V": control_input})
     if problems:  # every other name is a view name: nothing more can be checked without it
         raise ConfigError(problems)
     conversions = _conversions(description, scenario.mapping,
@@ -402,6 +405,25 @@ def _units(description, outputs, signals, control_input, conversions) -> dict[st
     if control_input in variables:
         named[control_input] = control_input
     return {name: unit(target) for name, target in named.items() if unit(target)}
+
+
+def _dimensions(description, variables, plant, fmu_path, mapping, named) -> list[str]:
+    """A foreign FMU's declared units against the quantities of the view (the units the
+    scenario's own plant declares, the default plant's when it names none): an angle must
+    come in an angle unit. A variable the mapping scales itself is the mapping's business."""
+    plant = plant if plant is not None else load_plant()
+    if plant.linear is not None or Path(fmu_path) == Path(build_fmu(plant)):
+        return []
+    ours = {v.name: v.unit for v in model_description(build_fmu(plant)).modelVariables}
+    given = mapping.conversions if mapping else {}
+    problems = []
+    for name, target in named.items():
+        if target in variables and target not in given:
+            problem = dimension_problem(description, variables[target], ours.get(name))
+            if problem:
+                problems.append(f"{fmu_path}: {problem} (the view's {name}); give the variable a "
+                                "scale in the mapping, or correct the FMU's unit")
+    return problems
 
 
 def _si(base) -> str:

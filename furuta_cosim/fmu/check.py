@@ -22,7 +22,7 @@ from furuta_cosim.errors import FmuError
 from furuta_cosim.fmu.archive import check_archive
 from furuta_cosim.fmu.contained import EngineFailed, contained
 from furuta_cosim.fmu.session import FmuBinary, PlantSession, model_description
-from furuta_cosim.fmu.variables import is_real
+from furuta_cosim.fmu.variables import declared_conversion, is_real, unit_problems
 
 
 @dataclass(frozen=True)
@@ -142,6 +142,14 @@ def _validate(fmu: Path, findings: list[Finding], timeout: float) -> None:
         findings.append(Finding("model description", False, str(error)))
         return
     variables = md.modelVariables
+    problems = unit_problems(md)
+    converted = []
+    for v in variables if not problems else ():
+        conversion = declared_conversion(md, v) if is_real(v) else None
+        if conversion:
+            converted.append(f"{v.name} by {conversion[0]:g}" + (f" + {conversion[1]:g}" if conversion[1] else ""))
+    findings.append(Finding("units", not problems, "; ".join(problems) if problems else
+                            (f"converted to SI: {', '.join(converted)}" if converted else "no conversions")))
     outputs = [v.name for v in variables if v.causality == "output" and is_real(v)]
     others = {}
     for v in variables:
