@@ -327,6 +327,9 @@ class Checker:
             self.fail(key, f"expected a matrix (a list of rows), got {_kind(value)}")
             return None
         widths = {len(r) for r in value}
+        if 0 in widths:
+            self.fail(key, "expected a matrix with at least one entry in each row, got an empty row")
+            return None
         if len(widths) != 1:
             self.fail(key, f"rows have different lengths {sorted(widths)}")
             return None

@@ -59,6 +59,12 @@ BAD_CONTROLLERS = {
     "generalized-shapes": ("type: generalized\ntime: continuous\nAc: [[1, 0]]\nBc: [[0, 0, 0, 0, 0]]\n"
                            "Cc: [[1]]\nDc: [[1, 1, 1, 1, 1]]\nmodel: paper-printed\n",
                            "Ac: must be square, got 1x2"),
+    # an empty row was a traceback (max() of an empty sequence) in every matrix
+    "empty-row-K": ("type: static\ntime: discrete\nperiod: 0.002\nK: [[]]\nmodel: paper-printed\n",
+                    "K: expected a matrix with at least one entry in each row, got an empty row"),
+    "empty-row-Bc": ("type: generalized\ntime: continuous\nAc: [[-1]]\nBc: [[]]\n"
+                     "Cc: [[1]]\nDc: [[1, 1, 1, 1, 1]]\nmodel: paper-printed\n",
+                     "Bc: expected a matrix with at least one entry in each row, got an empty row"),
     "unknown-key": ("type: static\ntime: discrete\nperiod: 0.002\nK: [1, 1, 1, 1, 1]\ngain: 3\n",
                     "gain: unknown key"),
 }

@@ -64,6 +64,11 @@ def edit(data, keys, value):
     (("constraints", "controller_stable"), "yes", "constraints.controller_stable"),
     (("variants",), [{"C1": "x"}], "variants[0].C1"),
     (("baselines",), "lqr-paper", "baselines"),
+    # found by the hostile-input probe: a traceback or silently accepted before
+    (("parameters", "Bc"), {"box": [-1e308, 1e308]}, "parameters.Bc.box"),
+    (("parameters", "Cc"), {"fixed": [[]]}, "parameters.Cc.fixed"),
+    (("variants",), [{"C1": 1e-4}], "variants"),
+    (("optimizer", "front"), "parego", "optimizer.front"),
     (("extra",), 1, "extra"),
 ])
 def test_bad_specs_are_one_line(tmp_path, capsys, keys, value, key):

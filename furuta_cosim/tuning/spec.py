@@ -82,6 +82,7 @@ class Constraints:
 
 # log and lqr bounds are exponents of 10, at most this large in magnitude
 MAX_DECADES = 12
+MAX_BOX = 1e6  # a box's bounds: beyond, the search's scaling of the box overflows
 # limits that keep a spec from taking the machine (each refused with one line, documented)
 MAX_STATES = 20            # controller states n_xc
 MAX_CALLS = 100_000        # evaluations of one run
@@ -252,6 +253,12 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
             if key in (top.get("constraints") or {}):
                 check.fail(f"constraints.{key}", "the spectral objective runs no co-simulation: "
                                                  "this constraint would never be checked")
+        if "variants" in top or from_fit is not None:
+            check.fail("variants", "the spectral objective is computed on the linear model: plant "
+                                   "variants would be ignored (use a scenarios objective)")
+    if objective and optimizer and objective.type != "tradeoff" and optimizer.front != "auto":
+        check.fail("optimizer.front", f"chooses how a tradeoff searches its front; this objective is "
+                                      f"{objective.type} (one number)")
     name = (check.file_name(top["name"], "name") if "name" in top
             else check.file_name(path.stem, "name (taken from the file name)"))
     description = check.text(top["description"], "description") if "description" in top else ""
@@ -429,6 +436,10 @@ def _block(check: Checker, value, key: str, shape: tuple[int, int], controller=N
     low, high = bounds
     if not low < high:
         check.fail(f"{where}.{kind}", f"expected [low, high] with low < high, got {bounds}")
+        return None
+    if kind == "box" and max(abs(low), abs(high)) > MAX_BOX:
+        check.fail(f"{where}.box", f"expected bounds within +-{MAX_BOX:g} (a gain or a relative "
+                                   f"change; the search scales the box), got {bounds}")
         return None
     if kind in ("log", "lqr") and max(abs(low), abs(high)) > MAX_DECADES:
         # the bounds are exponents: [-50, 50] is most likely a range of values through 0
