@@ -342,3 +342,37 @@ def test_the_front_figure_shows_the_first_two_of_three_criteria(tmp_path, monkey
     figures.plot_tradeoff(feasible, feasible[:1], 0, ["a", "b", "c"], {}, tmp_path / "f")
     assert shown["x"][0] < 1.0 < 3.0 < shown["x"][1] < 4.0
     assert shown["y"][0] < 10.0 < 30.0 < shown["y"][1] < 40.0
+
+
+FRONT = {"criteria": ["effort", "tracking"],
+         "points": [{"index": 0, "file": "front/00.yaml", "criteria": {"effort": 0.9, "tracking": 1.2}},
+                    {"index": 1, "file": "front/01.yaml", "criteria": {"effort": 1.1, "tracking": 0.8}}],
+         "baselines": {"lqr-paper": {"feasible": True, "criteria": {"effort": 1.0, "tracking": 1.0}}}}
+
+
+@pytest.mark.parametrize("damage, key", [
+    (lambda d: d["points"][1]["criteria"].update(effort=float("nan")), "points[1].criteria.effort"),
+    (lambda d: d["points"][0]["criteria"].update(tracking=float("inf")), "points[0].criteria.tracking"),
+    (lambda d: d["points"][0]["criteria"].update(effort="low"), "points[0].criteria.effort"),
+    (lambda d: d["points"][0]["criteria"].pop("tracking"), "points[0].criteria.tracking"),
+    (lambda d: d["points"].append(7), "points[2].criteria"),
+    (lambda d: d["baselines"]["lqr-paper"]["criteria"].update(effort=float("nan")),
+     "baselines.lqr-paper.criteria.effort"),
+    (lambda d: d.update(criteria=["effort", "effort"]), "criteria"),
+])
+def test_a_damaged_front_file_is_one_line_naming_its_key(tmp_path, capsys, damage, key):
+    """A NaN, inf, text or missing criterion was a traceback, and NaN baseline criteria gave
+    'hypervolume 0' for every front with exit 0."""
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "front.json").write_text(json.dumps(FRONT))
+    code, _, err = run_cli(capsys, "fronts", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "ok"))
+    assert code == 0, err
+    document = json.loads(json.dumps(FRONT))
+    damage(document)
+    (tmp_path / "b" / "front.json").write_text(json.dumps(document))
+    code, _, err = run_cli(capsys, "fronts", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "cmp"))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"error: {tmp_path / 'b' / 'front.json'}: {key}"), lines[0]
+    assert not (tmp_path / "cmp").exists()

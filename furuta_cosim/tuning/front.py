@@ -15,10 +15,12 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
+from furuta_cosim.config import excerpt, plain_name
 from furuta_cosim.documents import dumps
 from furuta_cosim.files import folder as make_folder, write_text
 from furuta_cosim.tuning import pareto
@@ -147,7 +149,46 @@ def load_front(folder: Path) -> dict:
     if not isinstance(document, dict) or not isinstance(document.get("points"), list) \
             or not isinstance(document.get("criteria"), list):
         raise ConfigError([f"{path}: not a front (expected criteria and points)"])
+    problems = _front_problems(document)
+    if problems:
+        raise ConfigError([f"{path}: {problem}" for problem in problems[:10]])
     return document
+
+
+def _front_problems(document: dict) -> list[str]:
+    """What a comparison would trip over: criteria that are not distinct names, a point or a
+    baseline without a finite number for every criterion."""
+    names = document["criteria"]
+    if not names or not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names):
+        return [f"criteria: expected distinct names, got {excerpt(repr(names))}"]
+    problems = []
+
+    def numbers(values, key: str) -> None:
+        if not isinstance(values, dict):
+            problems.append(f"{key}: expected a mapping of {', '.join(names)}, got {type(values).__name__}")
+            return
+        for name in names:
+            value = values.get(name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                problems.append(f"{key}.{name}: expected a finite number, got {excerpt(repr(value))}")
+
+    for k, point in enumerate(document["points"]):
+        numbers(point.get("criteria") if isinstance(point, dict) else point, f"points[{k}].criteria")
+        if isinstance(point, dict):
+            if isinstance(point.get("index"), bool) or not isinstance(point.get("index"), int):
+                problems.append(f"points[{k}].index: expected the evaluation's number")
+            if not isinstance(point.get("file"), str):
+                problems.append(f"points[{k}].file: expected the point's controller file")
+    baselines = document.get("baselines", {})
+    if not isinstance(baselines, dict):
+        return problems + [f"baselines: expected a mapping, got {type(baselines).__name__}"]
+    for name, baseline in baselines.items():
+        name = name if plain_name(name) else excerpt(name)
+        if not isinstance(baseline, dict) or not isinstance(baseline.get("feasible"), bool):
+            problems.append(f"baselines.{name}: expected feasible (true or false) and criteria")
+        elif baseline.get("criteria") is not None:
+            numbers(baseline["criteria"], f"baselines.{name}.criteria")
+    return problems
 
 
 def compare(folders, out: Path) -> dict:
