@@ -267,6 +267,11 @@ def test_resume_refuses_another_spec_method_or_seed(tmp_path, capsys):
                                "--n-calls", "6", "--workers", "1")
         assert code == 2 and expected in err, err
     assert len(history(tmp_path / "run")) == 3  # nothing was added
+    # with spec.yaml deleted, the other spec once continued the history; run.json's hash says
+    (tmp_path / "run" / "spec.yaml").rename(tmp_path / "kept.yaml")
+    code, _, err = run_cli(capsys, "tune", str(other), "-o", str(tmp_path / "run"), "--resume",
+                           "--n-calls", "6", "--workers", "1")
+    assert code == 2 and "the spec differs from the one" in err and len(history(tmp_path / "run")) == 3, err
     code, _, err = run_cli(capsys, "tune", "paper-spectral", "-o", str(tmp_path / "run"), "--resume",
                            "--n-calls", "6", "--workers", "1")
     assert code == 0 and len(history(tmp_path / "run")) == 6

@@ -19,6 +19,7 @@ the summary (tuning/summary.py).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -123,6 +124,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
                 log(f"warning: {spec.source}: {line}")
     identity = {"spec": Path(spec.path).read_text() if spec.path else spec.name,
                 "method": method, "seed": seed}
+    identity["spec_sha256"] = hashlib.sha256(identity["spec"].encode()).hexdigest()
     if spec.plant is not None:
         identity["plant"] = spec.plant
     if resume:

@@ -39,9 +39,16 @@ def same_run(folder: Path, identity: dict) -> None:
         spec_text = (folder / "spec.yaml").read_text() if (folder / "spec.yaml").exists() else None
     except (OSError, ValueError) as error:
         raise ConfigError([f"resume: {folder / 'run.json'} cannot be read ({error})"]) from None
-    if spec_text is not None and spec_text != identity["spec"]:
+    if not isinstance(started, dict):
+        raise ConfigError([f"resume: {folder / 'run.json'} is not a run's identity"])
+    recorded = started.get("spec_sha256")
+    if (spec_text is not None and spec_text != identity["spec"]) or \
+            (recorded is not None and recorded != identity["spec_sha256"]):
         raise ConfigError([f"resume: the spec differs from the one {folder} was started with "
-                           f"({folder / 'spec.yaml'})"])
+                           f"({folder / 'spec.yaml'}, sha256 in {folder / 'run.json'})"])
+    if spec_text is None and recorded is None:
+        raise ConfigError([f"resume: {folder / 'spec.yaml'} is missing and run.json records no "
+                           "spec hash: nothing tells that this spec is the one the run started with"])
     for key in ("method", "seed", "plant"):
         if started.get(key) != identity.get(key):
             mine, theirs = identity.get(key, "(none)"), started.get(key, "(none)")
@@ -71,7 +78,8 @@ class Clock(dict):
             saved = {}
         saved = saved if isinstance(saved, dict) else {}
         super().__init__({key: _seconds(saved.get(f"{key}_seconds")) for key in ("optimizer", "evaluation")})
-        self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed", "plant") if k in saved}
+        self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed", "plant", "spec_sha256")
+                                    if k in saved}
 
     def save(self) -> None:
         write_text(self.path, json.dumps({**self.identity, "optimizer_seconds": self["optimizer"],
