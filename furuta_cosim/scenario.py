@@ -313,6 +313,9 @@ def _plant(check: Checker, value, folder: Path):
         return "", Frozen({}), Frozen({}), None, None, None
     if "model" not in section and "fmu" not in section:
         check.fail("plant", "expected model (a plant name or file) or fmu (an FMU file)")
+    elif "model" in section and "fmu" in section:
+        check.fail("plant", "model and fmu both given: model builds the plant's FMU, fmu runs "
+                            "another one; give one of them")
     model = check.string(section.get("model"), "plant.model") if "model" in section else ""
     fmu = None
     if "fmu" in section:
@@ -370,6 +373,10 @@ def _mapping(check: Checker, value, prefix: str = "plant.mapping.") -> PlantMapp
     mapped = list(parts["states"].values()) + list(parts["outputs"].values())
     if len(set(mapped)) != len(mapped):
         check.fail(f"{prefix}states", "two names map to the same FMU output")
+    pushed = list(parts["disturbances"].values())
+    if len(set(pushed)) != len(pushed):
+        twice = sorted({n for n in pushed if pushed.count(n) > 1})
+        check.fail(f"{prefix}disturbances", f"two disturbances act on the same FMU input ({', '.join(twice)})")
     for name in ignore:
         if name in mapped:
             check.fail(f"{prefix}ignore", f"{name} is mapped: it cannot be ignored as well")

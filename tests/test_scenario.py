@@ -79,6 +79,12 @@ CASES = {
                         "reference.signal.points: expected a list of [time, value] pairs"),
     "unknown-estimator": (BASE + "estimator: {type: luenberger, measured: [theta0]}\n",
                           "estimator.type: expected one of kalman, got 'luenberger'"),
+    # silently accepted before: the model was ignored, one input got two disturbances' values
+    "model-and-fmu": (edit("model: furuta,", "model: furuta, fmu: other.fmu,"),
+                      "plant: model and fmu both given"),
+    "two-disturbances-one-input": (edit("initial: {theta1: 0.1}}", "initial: {theta1: 0.1}, mapping: "
+                                        "{disturbances: {tau0: arm_torque, tau1: arm_torque}}}"),
+                                   "plant.mapping.disturbances: two disturbances act on the same FMU input (arm_torque)"),
     "estimator-unknown-output": (BASE + "estimator: {type: kalman, measured: [theta0, psi]}\n",
                                  "estimator.measured: 'psi' is not an output"),
 }
