@@ -25,7 +25,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from furuta_cosim import __version__, paths
-from furuta_cosim.config import Checker, load_yaml
+from furuta_cosim.config import MAX_BYTES, Checker, load_yaml
 from furuta_cosim.cosim.evaluation import Compiled, runs, scenario_controllers
 from furuta_cosim.cosim.master import Prepared, lacks, on_plant, prepare
 from furuta_cosim.cosim.result import RunResult
@@ -590,7 +590,14 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             old = target.read_text() if target.exists() else None
             text = baseline_text(document)
             case.status = "new" if old is None else ("unchanged" if old == text else "updated")
-            if old != text:
+            size = len(text.encode())
+            if size > MAX_BYTES:  # regress would refuse to read it back
+                case.status = "fail"
+                case.differences.append(Difference(
+                    "run", "baseline", f"at most {MAX_BYTES} bytes", f"{size} bytes",
+                    f"not written: regress reads no file over {MAX_BYTES // 1_000_000} MB; lower "
+                    f"regression.points in {prepared.scenario.source}"))
+            elif old != text:
                 write_text(target, text)
         elif baseline is None:
             case.status = "missing"

@@ -10,6 +10,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+import yaml
 
 from furuta_cosim import paths
 from furuta_cosim.regression import regress
@@ -374,3 +375,19 @@ def test_worker_processes_leave_nothing_in_the_temporary_directory(tmp_path):
                           env={**os.environ, "TMPDIR": str(folder)})
     assert done.returncode == 0, done.stderr
     assert sorted(p.name for p in folder.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_update_never_writes_a_baseline_that_regress_would_refuse(tmp_path, capsys):
+    """--update once wrote a 6 MB baseline that every later regress refused as too large."""
+    text = (paths.scenarios() / "paper-step.yaml").read_text()
+    path = tmp_path / "long-step.yaml"
+    path.write_text(text.replace("name: paper-step", "name: long-step")
+                    .replace("controllers: [lqr-paper, bo-paper]", "controllers: [lqr-paper]")
+                    + "\nregression: {points: 100000}\n")
+    data = yaml.safe_load(path.read_text())
+    data["timing"]["duration"] = 100.0
+    path.write_text(yaml.safe_dump(data))
+    code, out, err = run_cli(capsys, "regress", str(path), "--update", "--workers", "1")
+    assert code == 1 and "not written: regress reads no file over 1 MB" in out + err, out + err
+    assert not (tmp_path / "baselines" / "long-step" / "lqr-paper.yaml").exists()
