@@ -37,7 +37,12 @@ def atomic(path: str | Path) -> Iterator[Path]:
     try:
         os.close(os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
                          0o666))
-        yield partial
+        try:
+            yield partial
+        except OSError as error:  # a full disk names no file: name the one being written
+            if error.filename in (None, str(partial), partial):
+                raise named(error, path) from None
+            raise
         os.replace(partial, path)  # replaces a link at ``path`` itself, never its target
     finally:
         partial.unlink(missing_ok=True)
@@ -87,6 +92,11 @@ def _make(path: Path) -> None:
                 raise ConfigError([f"{probe}: exists and is not a folder"]) from None
     else:
         path.mkdir(parents=True, exist_ok=True)
+
+
+def named(error: OSError, path: str | Path) -> OSError:
+    """``error`` as the same OSError about ``path`` (the CLI prints its file name)."""
+    return OSError(error.errno, error.strerror or str(error), str(path))
 
 
 def write_text(path: str | Path, text: str) -> Path:

@@ -243,6 +243,34 @@ def test_a_full_disk_while_writing_is_one_line_and_leaves_nothing(tmp_path, caps
     assert list((tmp_path / "out").iterdir()) == []
 
 
+def test_a_full_disk_names_the_file_it_filled(tmp_path, capsys, monkeypatch):
+    """The kernel's ENOSPC carries no file name: the line once read "error: No space left on
+    device" alone. The writer names its target, and the history its file."""
+    import errno
+    import pathlib
+
+    real = pathlib.Path.write_text
+
+    def full(self, *args, **kwargs):
+        if self.name.endswith(".partial"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "write_text", full)
+    code, _, err = run_cli(capsys, "design", "lqr", "-o", str(tmp_path / "K.yaml"))
+    assert code == 2 and err == f"error: {tmp_path / 'K.yaml'}: No space left on device\n", err
+    monkeypatch.setattr(pathlib.Path, "write_text", real)
+
+    from furuta_cosim.tuning import history
+
+    def no_room(handle, record):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(history, "_append", no_room)
+    code, _, err = run_cli(capsys, "tune", "paper-spectral", "--n-calls", "3", "-o", str(tmp_path / "run"))
+    assert code == 2 and err.endswith(f"error: {tmp_path / 'run' / 'history.jsonl'}: No space left on device\n"), err
+
+
 def test_analyze_exits_by_every_verdict_it_prints(tmp_path, capsys):
     controller = tmp_path / "fast.yaml"
     data = yaml.safe_load((SHIPPED / "controllers" / "lqr-paper.yaml").read_text())

@@ -13,6 +13,7 @@ import numpy as np
 
 from furuta_cosim.documents import dumps, json_safe
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.files import named
 
 if TYPE_CHECKING:
     from furuta_cosim.tuning.objective import Outcome
@@ -92,7 +93,10 @@ class History:
                 handle.write(b"\n")
 
     def append(self, record: dict) -> None:
-        _append(self._handle, record)
+        try:
+            _append(self._handle, record)
+        except OSError as error:  # a full disk: say which file
+            raise named(error, self.path) from None
         self.records.append(record)
 
     def close(self) -> None:
