@@ -142,3 +142,17 @@ def test_an_engine_that_hangs_is_stopped(private_tmp):
 
     with pytest.raises(EngineFailed, match="did not finish in 2 s"):
         contained(time.sleep, 60, engine="fmpy", timeout=2)
+
+
+def test_a_variable_declared_its_own_derivative_is_refused(exports, tmp_path, capsys):
+    """It was accepted: the state vector then holds a state that is its own derivative."""
+    looped = rewritten(exports / "ForeignPendulum3.fmu", tmp_path / "Looped.fmu",
+                       lambda text: text.replace('valueReference="19" causality="local" variability="continuous" '
+                                                 'derivative="18"', 'valueReference="19" causality="local" '
+                                                 'variability="continuous" derivative="19"'))
+    code, out = validate(capsys, looped)
+    assert code == 1 and re.search(r"^FAIL +model description .*der\(arm_angle\) is declared the derivative "
+                                   r"of itself", out, re.M), out
+    code = main(["simulate", "paper-step", "--fmu", str(looped)])
+    err = capsys.readouterr().err
+    assert code == 2 and "is declared the derivative of itself" in err and len(err.strip().splitlines()) == 1, err

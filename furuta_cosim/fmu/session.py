@@ -128,9 +128,14 @@ def _read(path: str, _stamp: tuple) -> ModelDescription:
     # ``_stamp`` (size and mtime) only keys the cache: a changed file is read again
     check_archive(path)
     try:
-        return fmpy.read_model_description(path)
+        md = fmpy.read_model_description(path)
     except Exception as error:  # fmpy raises bare Exceptions for malformed FMUs
         raise FmuError(f"{path}: cannot read modelDescription.xml: {error}") from None
+    for variable in md.modelVariables:
+        if getattr(variable, "derivative", None) is variable:
+            raise FmuError(f"{path}: modelDescription.xml: {variable.name} is declared the derivative "
+                           "of itself (derivative= names its own variable)")
+    return md
 
 
 def model_description(fmu: str | Path) -> ModelDescription:
