@@ -3,6 +3,16 @@
 from __future__ import annotations
 
 
+MAX_LINE = 2000  # characters of one problem line: a 5000-character key is quoted, not echoed
+
+
+def printable(line: str) -> str:
+    """``line`` as one printable line: control characters (a newline or carriage return in a
+    key read from a file) escaped, and no longer than :data:`MAX_LINE`."""
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in line)
+    return shown if len(shown) <= MAX_LINE else shown[:MAX_LINE] + "..."
+
+
 class ConfigError(ValueError):
     """A YAML file (plant, scenario, controller, tuning spec) that cannot be used.
 
@@ -11,7 +21,7 @@ class ConfigError(ValueError):
     """
 
     def __init__(self, problems: list[str]):
-        self.problems = list(problems)
+        self.problems = [printable(str(problem)) for problem in problems]
         super().__init__("\n".join(self.problems))
 
     def within(self, prefix: str) -> "ConfigError":
@@ -32,6 +42,11 @@ class NotApplicable(ConfigError):
 
 class FmuError(RuntimeError):
     """An FMU that failed to build, load, or reported an error while running."""
+
+    def __init__(self, message: str, multiline: bool = False):
+        # ``multiline``: our own compiler's output, line by line; any other message is one line
+        super().__init__("\n".join(printable(line) for line in str(message).splitlines())
+                         if multiline else printable(str(message)))
 
 
 class DesignError(ValueError):

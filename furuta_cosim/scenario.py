@@ -309,7 +309,7 @@ def _regression(check: Checker, value) -> Regression:
 def _plant(check: Checker, value, folder: Path):
     section = check.mapping(value, "plant", optional=("model", "fmu", "overrides", "initial",
                                                        "control_input", "mapping"))
-    if not section:
+    if section is None:
         return "", Frozen({}), Frozen({}), None, None, None
     if "model" not in section and "fmu" not in section:
         check.fail("plant", "expected model (a plant name or file) or fmu (an FMU file)")

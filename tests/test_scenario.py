@@ -80,6 +80,8 @@ CASES = {
     "unknown-estimator": (BASE + "estimator: {type: luenberger, measured: [theta0]}\n",
                           "estimator.type: expected one of kalman, got 'luenberger'"),
     # silently accepted before: the model was ignored, one input got two disturbances' values
+    "empty-plant": (edit("plant: {model: furuta, initial: {theta1: 0.1}}", "plant: {}"),
+                    "plant: expected model (a plant name or file) or fmu"),  # found by tests/test_fuzz.py
     "model-and-fmu": (edit("model: furuta,", "model: furuta, fmu: other.fmu,"),
                       "plant: model and fmu both given"),
     "two-disturbances-one-input": (edit("initial: {theta1: 0.1}}", "initial: {theta1: 0.1}, mapping: "

@@ -405,7 +405,7 @@ def _build(model: Model, files: dict, guid: str, cc: str, target: Path, fmi_vers
         except OSError as error:
             raise FmuError(f"cannot run the C compiler {cc}: {error.strerror}") from None
         if result.returncode != 0:
-            raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}")
+            raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}", multiline=True)
         version = versions.fmi_version(fmi_version)
         description = version.model_description(model, guid, sources)
         # atomic: a concurrent build or a crash never leaves half an FMU under its name

@@ -22,6 +22,7 @@ import numpy as np
 
 from furuta_cosim.config import Checker, Frozen, excerpt, load_yaml, plain_name
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
 
 # unit -> factor to SI (rad, rad/s, A, V, s): value_SI = (value + offset) * factor
 UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi, "rad/s": 1.0,
@@ -129,7 +130,10 @@ def load_experiment(path: str | Path) -> Experiment:
         check.fail("time", f"{excerpt(time_column)} is not one of columns ({', '.join(columns)})")
     csv = _csv_path(check, top["data"], path)
     check.done()
-    table = read_csv(csv, columns, header, delimiter)
+    try:
+        table = read_csv(csv, columns, header, delimiter)
+    except ConfigError as error:  # the log and the experiment's columns disagree: name both
+        raise error.within(f"{path}: data") from None
     t = table[time_column]
     first, last = _window(check, top.get("window"), t, csv, table[LINE])
     check.done()
@@ -261,17 +265,20 @@ def _signal(check: Checker, entry, key: str, table, columns, keep, extra=()) -> 
     factor = 1.0
     if "unit" in section:
         unit = section["unit"]
-        if unit not in UNITS:
+        if not isinstance(unit, str) or unit not in UNITS:
             check.fail(f"{key}.unit", f"unknown unit {excerpt(str(unit))} (known: {', '.join(UNITS)}; "
                                       "scale: a factor to SI for anything else)")
             return None
         factor = UNITS[unit]
     elif "scale" in section:
         factor = check.number(section["scale"], f"{key}.scale")
-        if factor == 0:
-            check.fail(f"{key}.scale", "must not be 0")
+        if factor is not None and not MIN_FACTOR <= abs(factor) <= MAX_FACTOR:
+            check.fail(f"{key}.scale", f"expected a magnitude in [{MIN_FACTOR:g}, {MAX_FACTOR:g}], got {factor:g}")
             return None
     offset = check.number(section.get("offset", 0.0), f"{key}.offset")
+    if offset is not None and abs(offset) > MAX_OFFSET:
+        check.fail(f"{key}.offset", f"expected a magnitude of at most {MAX_OFFSET:g}, got {offset:g}")
+        return None
     if factor is None or offset is None:
         return None
     return (table[column][keep] + offset) * factor, abs(factor), section
