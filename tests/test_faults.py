@@ -32,7 +32,7 @@ SCENARIO_CASES = [
     (("plant", "overrides"), {"n_substeps": 2.5}, "plant.overrides.n_substeps"),
     (("plant", "overrides"), {"n_substeps": 1.0e10}, "plant.overrides.n_substeps"),
     (("plant", "overrides"), {"m_p": "x"}, "plant.overrides.m_p"),
-    (("plant", "fmu"), "missing.fmu", "plant.fmu"), (("plant", "fmu"), 5, "plant.fmu"),
+    (("plant",), {"fmu": "missing.fmu"}, "plant.fmu"), (("plant",), {"fmu": 5}, "plant.fmu"),
     (("plant", "mapping"), 5, "plant.mapping"), (("plant", "mapping"), {"states": 5}, "plant.mapping.states"),
     (("plant", "mapping"), {"states": {"theta0": 5}}, "plant.mapping.states.theta0"),
     (("plant", "mapping"), {"bogus": {}}, "plant.mapping.bogus"),

@@ -358,7 +358,9 @@ def test_a_symlinked_history_is_refused(stopped_run, tmp_path, capsys):
     assert elsewhere.read_bytes() == before
 
 
-def test_atomic_writes_never_follow_a_planted_link(tmp_path, capsys):
+def test_links_planted_at_temporary_names_are_refused_and_never_followed(tmp_path, capsys):
+    """The temporary names are unguessable and created exclusively, so such a link was never
+    followed; an output folder holding links is now refused before any work, one line each."""
     out = tmp_path / "out"
     out.mkdir()
     victim = tmp_path / "victim.txt"
@@ -366,9 +368,13 @@ def test_atomic_writes_never_follow_a_planted_link(tmp_path, capsys):
     for name in ("metrics.json", "toy-classical.csv", "toy-step.svg"):
         (out / f".{name}.partial").symlink_to(victim)
     code, _, err = run_cli(capsys, "simulate", "toy-step", "-o", str(out))
-    assert code == 0, err
-    assert victim.read_text() == "keep"
-    assert json.loads((out / "metrics.json").read_text())["scenario"] == "toy-step"
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 3 and all("is a symbolic link" in line for line in lines), err
+    assert victim.read_text() == "keep" and not (out / "metrics.json").exists()
+    for link in out.iterdir():
+        link.unlink()
+    code, _, err = run_cli(capsys, "simulate", "toy-step", "-o", str(out))
+    assert code == 0 and json.loads((out / "metrics.json").read_text())["scenario"] == "toy-step", err
 
 
 @pytest.mark.parametrize("argv, expected", [
