@@ -77,6 +77,8 @@ def load_yaml(path: str | Path) -> Any:
     try:
         with path.open("rb") as handle:
             raw = handle.read(MAX_BYTES + 1)
+    except ValueError:  # a NUL in the name
+        raise ConfigError([f"{excerpt(str(path))}: not a usable file name"]) from None
     except FileNotFoundError:
         raise ConfigError([f"{path}: file not found"]) from None
     except (IsADirectoryError, PermissionError, OSError) as error:

@@ -25,7 +25,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from furuta_cosim import __version__, paths
-from furuta_cosim.config import MAX_BYTES, Checker, load_yaml
+from furuta_cosim.config import MAX_BYTES, Checker, excerpt, load_yaml
 from furuta_cosim.cosim.evaluation import Compiled, runs, scenario_controllers
 from furuta_cosim.cosim.master import Prepared, lacks, on_plant, prepare
 from furuta_cosim.cosim.result import RunResult
@@ -199,6 +199,9 @@ def read_baseline(path: Path) -> dict:
         raw = top["metrics"]
         entries = check.mapping(raw, "metrics", optional=tuple(raw) if isinstance(raw, dict) else ())
         for name, value in (entries or {}).items():
+            if not isinstance(name, str) or name.count(".") < 1 or not all(name.split(".")):
+                check.fail(f"metrics.{excerpt(str(name))}", "expected a metric name <signal>.<metric>")
+                continue
             if value is None:
                 metrics[str(name)] = math.inf
             elif check.number(value, f"metrics.{name}") is not None:

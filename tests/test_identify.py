@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from furuta_cosim.identify.fit import autocorrelation_time, fit, sandwich
 from furuta_cosim.identify.replay import target_for
@@ -126,3 +127,17 @@ def test_validation_experiments_are_scored_and_never_fitted(tmp_path):
     scored = checked["validation"]["prbs-2"]
     assert scored["theta0"]["rms"] < QUANTUM and scored["i"]["rms"] == pytest.approx(0.004, rel=0.1)
     assert "prbs-2" not in checked["experiments"] and plain["validation"] == {}
+
+
+@pytest.mark.parametrize("experiments, expected", [
+    (["\x00"], "not a usable file name"),   # found by tests/test_fuzz.py
+    ([7], "experiments: expected a list of experiment files"),
+])
+def test_an_unusable_experiment_name_is_one_line(tmp_path, capsys, experiments, expected):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(yaml.safe_dump({"name": "x", "plant": "qube-servo-3", "experiments": experiments,
+                                    "free": {"R_a": {"bounds": [1.0, 30.0]}}}))
+    code, _, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "out"))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {spec}: "), err
+    assert expected in lines[0], lines[0]

@@ -391,3 +391,17 @@ def test_update_never_writes_a_baseline_that_regress_would_refuse(tmp_path, caps
     code, out, err = run_cli(capsys, "regress", str(path), "--update", "--workers", "1")
     assert code == 1 and "not written: regress reads no file over 1 MB" in out + err, out + err
     assert not (tmp_path / "baselines" / "long-step" / "lqr-paper.yaml").exists()
+
+
+@pytest.mark.parametrize("name", ["", "peak", ".x", "u."])
+def test_a_baseline_metric_without_a_signal_is_refused(tmp_path, name):
+    """Found by tests/test_fuzz.py: a metric named '' was read as a metric."""
+    from furuta_cosim.errors import ConfigError
+    from furuta_cosim.regression import read_baseline
+
+    data = yaml.safe_load((paths.scenarios() / "baselines" / "paper-step" / "lqr-paper.yaml").read_text())
+    data["metrics"][name] = 1.0
+    path = tmp_path / "lqr-paper.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="expected a metric name <signal>.<metric>"):
+        read_baseline(path)

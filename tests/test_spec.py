@@ -69,6 +69,7 @@ def edit(data, keys, value):
     (("parameters", "Cc"), {"fixed": [[]]}, "parameters.Cc.fixed"),
     (("variants",), [{"C1": 1e-4}], "variants"),
     (("optimizer", "front"), "parego", "optimizer.front"),
+    (("constraints",), True, "constraints"),  # found by tests/test_fuzz.py: a TypeError
     (("extra",), 1, "extra"),
 ])
 def test_bad_specs_are_one_line(tmp_path, capsys, keys, value, key):

@@ -359,6 +359,7 @@ FRONT = {"criteria": ["effort", "tracking"],
     (lambda d: d["baselines"]["lqr-paper"]["criteria"].update(effort=float("nan")),
      "baselines.lqr-paper.criteria.effort"),
     (lambda d: d.update(criteria=["effort", "effort"]), "criteria"),
+    (lambda d: d.update(criteria=["tracking", "effort"]), "criteria"),  # another front's order
 ])
 def test_a_damaged_front_file_is_one_line_naming_its_key(tmp_path, capsys, damage, key):
     """A NaN, inf, text or missing criterion was a traceback, and NaN baseline criteria gave

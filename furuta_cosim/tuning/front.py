@@ -217,8 +217,9 @@ def compare(folders, out: Path) -> dict:
     names = fronts[0]["criteria"]
     for folder, front in zip(folders, fronts):
         if front["criteria"] != names:
-            raise ConfigError([f"{folder}: criteria {', '.join(front['criteria'])} differ from "
-                               f"{folders[0]}'s ({', '.join(names)}): the fronts are not comparable"])
+            raise ConfigError([f"{Path(folder) / 'front.json'}: criteria: {', '.join(front['criteria'])} "
+                               f"differ from {Path(folders[0]) / 'front.json'}'s ({', '.join(names)}): "
+                               "the fronts are not comparable"])
     baselines = {n: b for n, b in fronts[0]["baselines"].items() if b.get("criteria")}
     rows = {label: [[p["criteria"][n] for n in names] for p in front["points"]]
             for label, front in zip(labels, fronts)}

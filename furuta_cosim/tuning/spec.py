@@ -249,8 +249,9 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
         constraints = replace(constraints, baseline=resolve(
             constraints.baseline, "constraints.no_worse_than.controller"))
     if objective and objective.type == "spectral":
+        given = top.get("constraints")
         for key in ("max_abs", "no_worse_than", "requirements"):
-            if key in (top.get("constraints") or {}):
+            if isinstance(given, dict) and key in given:
                 check.fail(f"constraints.{key}", "the spectral objective runs no co-simulation: "
                                                  "this constraint would never be checked")
         if "variants" in top or from_fit is not None:
