@@ -147,7 +147,7 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     if unsupported:
         raise ConfigError([f"{scenario.source}: the Ecos loop has only plant and controller; "
                            f"this scenario needs the master for: {', '.join(unsupported)}"])
-    from fmpy import read_model_description
+    from furuta_cosim.fmu.session import model_description
 
     from furuta_cosim.fmu.exporter import build_fmu
 
@@ -156,7 +156,7 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     outputs = dict(zip(prepared.states, prepared.outputs))
     connections = [(f"plant::{outputs[s]}", f"controller::{s}") for s in prepared.states]
     connections.append((f"controller::{made.linear.outputs[0]}", f"plant::{prepared.control_input}"))
-    reals = {v.name for v in read_model_description(str(prepared.fmu)).modelVariables if v.type == "Real"}
+    reals = {v.name for v in model_description(prepared.fmu).modelVariables if v.type == "Real"}
     start = {f"plant::{k}": float(v) for k, v in prepared.start.items() if k in reals}
     start[f"controller::{REFERENCE_INPUT}"] = float(prepared.rbar[0]) if len(prepared.rbar) else 0.0
     names = [f"plant::{outputs[s]}" for s in prepared.states] + [f"plant::{prepared.control_input}"]

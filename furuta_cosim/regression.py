@@ -121,9 +121,9 @@ def make_baseline(prepared: Prepared, compiled: Compiled, result: RunResult) -> 
         keep = _bounded_length(trace, columns, scenario.regression.divergence_bound)
     rows = (np.column_stack([trace[c][:keep:every] for c in columns]) if keep
             else np.zeros((0, len(columns))))
-    from fmpy import read_model_description
+    from furuta_cosim.fmu.session import model_description
 
-    description = read_model_description(str(prepared.fmu))
+    description = model_description(prepared.fmu)  # the zip checked, read once per file version
     document = {
         "format": FORMAT,
         "scenario": {"name": scenario.name, "sha256": file_hash(scenario.path)},
