@@ -66,8 +66,9 @@ def _start_worker(parent: int, setup, setup_args) -> None:
 
     _watch_parent(parent)
     # a pool's worker ends by os._exit, without atexit handlers; multiprocessing's own exit
-    # finalizers do run there, so the sessions (and their extracted FMUs) close at the end
-    multiprocessing.util.Finalize(None, close_all, exitpriority=10)
+    # finalizers do run there. They remove the extracted FMUs and nothing more: unloading a
+    # library (dlclose) in a forked worker at exit can deadlock on a lock the fork copied
+    multiprocessing.util.Finalize(None, _remove_extracted, exitpriority=10)
     if setup is not None:
         setup(*setup_args)
 
@@ -163,6 +164,15 @@ def evaluate_here(prepared: Prepared, controller) -> RunResult:
     """
     prepared = _PREPARED.setdefault(prepared.key, prepared)
     return evaluate(prepared, session_for(prepared), controller)
+
+
+def _remove_extracted() -> None:
+    """The extracted FMUs of this process's sessions, removed; the libraries stay loaded
+    until the process is gone a moment later."""
+    import shutil
+
+    for session in list(_SESSIONS.values()):
+        shutil.rmtree(session.binary.directory, ignore_errors=True)
 
 
 @atexit.register
