@@ -97,7 +97,7 @@ def test_a_clocked_fmu_is_refused_and_the_other_checks_still_report(exports, tmp
 
 
 @pytest.mark.parametrize("entry, problem", [
-    ("../../../../tmp/x", "leaves the FMU's folder"),
+    ("../../../../escaped/x", "leaves the FMU's folder"),   # a zip-slip entry
     ("/etc/passwd-copy", "an absolute name"),
     ("resources\\\\x", "backslash"),
 ])
