@@ -5,7 +5,7 @@ short), is either accepted with finite numbers, or refused with a ConfigError, F
 DesignError whose every line names the file; never another exception, a crash or a hang.
 
 In CI each loader gets a fixed-seed budget (FURUTA_COSIM_FUZZ_EXAMPLES examples, 60 by
-default: under a minute for all eleven). A longer search is the same test with a larger
+default: under a minute for all of them). A longer search is the same test with a larger
 budget, for example ``FURUTA_COSIM_FUZZ_EXAMPLES=2000 python -m pytest tests/test_fuzz.py``;
 Hypothesis prints the smallest failing file it found.
 """
@@ -177,40 +177,32 @@ def test_scenario_files(place, data):
     holds(_scenario_then_prepare, path, finite=False)  # a prepared scenario holds inf bounds by design
 
 
-@pytest.mark.slow
-@given(data=st.data())
-@BUDGET
-def test_controller_files(place, data):
-    from furuta_cosim.controllers import load_controller
-
-    name = data.draw(st.sampled_from(["lqr-paper.yaml", "bo-paper.yaml", "toy-generalized.yaml"]))
-    document = yaml.safe_load((SHIPPED / "controllers" / name).read_text())
-    path = _write(place("controller.yaml"), data.draw(mutated(document)))
-    holds(load_controller, path)
-
-
-@pytest.mark.slow
-@given(data=st.data())
-@BUDGET
-def test_plant_files(place, data):
-    from furuta_cosim.fmu.plants import load_plant
-
-    name = data.draw(st.sampled_from(["paper-calibrated.yaml", "qube-servo-3.yaml", "toy.yaml"]))
-    document = yaml.safe_load((SHIPPED / "plants" / name).read_text())
-    path = _write(place("plant.yaml"), data.draw(mutated(document)))
-    holds(load_plant, path)
+# shipped files of a kind, each loaded by one function: (folder, files, loader, finite?)
+SHIPPED_KINDS = {
+    "controller": ("controllers", ["lqr-paper.yaml", "bo-paper.yaml", "toy-generalized.yaml"],
+                   "furuta_cosim.controllers:load_controller", True),
+    "plant": ("plants", ["paper-calibrated.yaml", "qube-servo-3.yaml", "toy.yaml"],
+              "furuta_cosim.fmu.plants:load_plant", True),
+    # a spec's search space holds inf bounds by design
+    "spec": ("tuning", ["effort.yaml", "paper-spectral.yaml", "tradeoff.yaml"],
+             "furuta_cosim.tuning.spec:load_spec", False),
+}
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("kind", SHIPPED_KINDS)
 @given(data=st.data())
 @BUDGET
-def test_tuning_specs(place, data):
-    from furuta_cosim.tuning.spec import load_spec
+def test_shipped_files_of_each_kind(place, kind, data):
+    import importlib
 
-    name = data.draw(st.sampled_from(["effort.yaml", "paper-spectral.yaml", "tradeoff.yaml"]))
-    document = yaml.safe_load((SHIPPED / "tuning" / name).read_text())
-    path = _write(place("spec.yaml"), data.draw(mutated(document)))
-    holds(load_spec, path, finite=False)  # a spec's search space holds inf bounds by design
+    folder, names, loader, finite = SHIPPED_KINDS[kind]
+    module, function = loader.split(":")
+    load = getattr(importlib.import_module(module), function)
+    name = data.draw(st.sampled_from(names))
+    document = yaml.safe_load((SHIPPED / folder / name).read_text())
+    path = _write(place(f"{kind}.yaml"), data.draw(mutated(document)))
+    holds(load, path, finite=finite)
 
 
 MAPPING = {"control_input": "voltage",
