@@ -25,6 +25,7 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 
 from furuta_cosim.controllers import ControllerFile, fit, load_controller
+from furuta_cosim.cosim.limits import EVERY, Watch, monotone
 from furuta_cosim.cosim.loop import loop_for
 from furuta_cosim.cosim.master import Prepared
 from furuta_cosim.cosim.result import RunResult
@@ -121,12 +122,15 @@ def scenario_controllers(prepared: Prepared, names: Sequence | None = None) -> l
 
 
 def evaluate(prepared: Prepared, session, controller, *,
-             progress: Callable[[int, int], None] | None = None) -> RunResult:
+             progress: Callable[[int, int], None] | None = None,
+             limits: dict[str, float] | None = None) -> RunResult:
     """Run ``controller`` through the prepared scenario on ``session`` (reset here): the trace,
     its metrics, the requirement verdicts, why it stopped early if it did, and the wall time.
 
     A plant that gives up (a diverging loop) ends the run early; the result keeps its samples
-    and says why in ``failure``.
+    and says why in ``failure``. A run whose running value of a metric in ``limits`` passes
+    its bound stops there too (:mod:`furuta_cosim.cosim.limits`): ``stopped`` says which and
+    when, and the metrics are those of the samples run (lower bounds for the watched ones).
 
     Parameters
     ----------
@@ -138,20 +142,36 @@ def evaluate(prepared: Prepared, session, controller, *,
         Anything :func:`compile_controller` takes.
     progress : callable, optional
         ``progress(k, steps)``, called every :data:`CHUNK` samples.
+    limits : dict, optional
+        ``{metric: bound}`` of metrics that only grow along a run (``error.ISE``, ``error.IAE``,
+        ``error.ITAE``, ``u.energy``, ``u.peak_abs``, ``<output>.max_abs``): the run stops as
+        soon as one is past its bound.
 
     Returns
     -------
     RunResult
-        Trace, metrics, requirement verdicts, ``failure`` and wall time.
+        Trace, metrics, requirement verdicts, ``failure``, ``stopped`` and wall time.
+
+    Raises
+    ------
+    ValueError
+        When a metric of ``limits`` is not one that only grows.
     """
     started = time.perf_counter()
     compiled = compile_controller(prepared, controller)
-    trace = _run(prepared, session, compiled, progress)
+    watch = None
+    if limits:
+        wrong = [m for m in limits if not monotone(m, prepared.outputs)]
+        if wrong:
+            raise ValueError(f"limits: {', '.join(wrong)} do not only grow along a run")
+        dt = prepared.t[1] - prepared.t[0] if len(prepared.t) > 1 else 1.0
+        watch = Watch(dict(limits), list(prepared.signals), prepared.tracked, float(dt))
+    trace, stopped = _run(prepared, session, compiled, progress, watch)
     scenario = prepared.scenario
     metrics = compute(trace, scenario.reference.settles, scenario.error_window)
     checks = verdicts(metrics, scenario.requirements, compiled.name)
     return RunResult(scenario.name, compiled.name, trace, metrics, checks, trace.failure,
-                     time.perf_counter() - started, prepared.time_unit)
+                     time.perf_counter() - started, prepared.time_unit, stopped)
 
 
 def runs(prepared: Prepared, controllers: Sequence | None = None, *,
@@ -226,7 +246,7 @@ def _converted(prepared: Prepared, session):
     return step, read
 
 
-def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
+def _run(prepared: Prepared, session, compiled: Compiled, progress, watch=None):
     controller = compiled.runtime
     scenario = prepared.scenario
     outputs = prepared.outputs
@@ -248,6 +268,9 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
     values = read(session.get(outputs))
     steps = prepared.steps
     chunk = CHUNK if progress else max(steps, 1)
+    if watch is not None:
+        chunk = min(chunk, max(1, int(round(EVERY / prepared.control_period))))
+    stopped = None
     arguments = (step, controller.control, controller.state,
                  estimator.correct if estimator else None, estimator.predict if estimator else None,
                  prepared.rbar.tolist(),
@@ -261,6 +284,13 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
                           commands.append, xcs.append, estimates.append)
             if progress:
                 progress(last, steps)
+            if watch is not None:
+                past = watch.update(prepared.t[first:last], prepared.rbar[first:last],
+                                    rows[first:last], us[first:last])
+                if past:
+                    stopped = {"t": float(prepared.t[last - 1]), "metric": past,
+                               "value": watch.values[past], "bound": watch.bounds[past]}
+                    break
     except FmuError as error:
         # the plant gave up (a diverging loop): keep the samples up to that point
         peak = max(map(abs, us)) if us else 0.0
@@ -286,5 +316,6 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress) -> Trace:
         signals[estimate(prepared.states[j])] = column
     for j, name in enumerate(prepared.disturbances):
         signals[name] = prepared.disturbance[:n, j]
-    return Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us[:n]), signals,
-                 prepared.tracked, prepared.control_input, failure, dict(prepared.units))
+    trace = Trace(compiled.name, prepared.t[:n], prepared.rbar[:n], np.array(us[:n]), signals,
+                  prepared.tracked, prepared.control_input, failure, dict(prepared.units))
+    return trace, (None if failure else stopped)

@@ -27,11 +27,13 @@ class RunResult:
     failure: str | None
     wall_time: float
     time_unit: str = "s"
+    # a watched metric past its bound ended the run here: {"t", "metric", "value", "bound"}
+    stopped: dict | None = None
 
     @property
     def passed(self) -> bool:
         """The run went to the end and met every requirement that applies to it."""
-        return not self.failure and all(v["pass"] for v in self.requirements.values())
+        return not self.failure and not self.stopped and all(v["pass"] for v in self.requirements.values())
 
     def to_dict(self, trace_file: str | Path | None = None) -> dict:
         """The JSON entry (``trace_file``: where its CSV is, when it was written)."""
