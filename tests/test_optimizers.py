@@ -100,9 +100,9 @@ def test_each_point_of_a_batch_is_sent_before_the_next_is_computed(tmp_path, mon
     events = []
 
     class Recording(Serial):
-        def submit(self, x):
+        def submit(self, x, order=None):
             events.append("submit")
-            return super().submit(x)
+            return super().submit(x, order)
 
         def gather(self, pending):
             events.append("gather")

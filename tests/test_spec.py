@@ -62,6 +62,10 @@ def edit(data, keys, value):
     (("optimizer", "initial"), ["no-such-controller"], "optimizer.initial[0]"),
     (("constraints", "stability_margin"), -1, "constraints.stability_margin"),
     (("constraints", "controller_stable"), "yes", "constraints.controller_stable"),
+    (("constraints", "stop_early"), -0.5, "constraints.stop_early"),
+    (("constraints", "stop_early"), True, "constraints.stop_early"),
+    (("constraints", "stop_early"), "soon", "constraints.stop_early"),
+    (("constraints", "stop_early"), 1e7, "constraints.stop_early"),
     (("variants",), [{"C1": "x"}], "variants[0].C1"),
     (("baselines",), "lqr-paper", "baselines"),
     # found by the hostile-input probe: a traceback or silently accepted before

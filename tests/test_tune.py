@@ -158,12 +158,12 @@ def test_a_worker_that_raises_or_dies_fails_only_its_evaluation(tmp_path, monkey
 
     real = objective.Evaluator.__call__
 
-    def faulty(self, x):
+    def faulty(self, x, order=None):
         if x[1] > 0.6:        # Bc[0][0]: a candidate whose evaluation raises
             raise ValueError("injected fault")
         if x[1] < -0.7:       # and one whose worker process dies
             os._exit(3)
-        return real(self, x)
+        return real(self, x, order)
 
     monkeypatch.setattr(objective.Evaluator, "__call__", faulty)  # the forked workers inherit it
     document = tune(load_spec("paper-spectral"), tmp_path / "run", method="random", n_calls=16,
@@ -209,7 +209,8 @@ def test_differential_evolution_keeps_the_budget_and_the_history_format(tmp_path
 
 def history_keys():
     return {"index", "x", "parameters", "objective", "feasible", "value", "margin", "constraints",
-            "metrics", "origin", "surrogate", "wall_time", "worker", "error"}
+            "metrics", "violated", "stopped", "skipped", "known", "origin", "surrogate", "wall_time",
+            "worker", "error"}
 
 
 @pytest.mark.slow

@@ -33,7 +33,7 @@ def failed(spec: TuningSpec, error: str) -> Outcome:
     return Outcome(spec.constraints.penalty * 2, False, {}, {}, error)
 
 
-def evaluate_in_worker(spec: TuningSpec, x) -> Outcome:
+def evaluate_in_worker(spec: TuningSpec, x, order=None) -> Outcome:
     """The worker's side: this process's evaluator for the spec, built on first use."""
     key = repr(spec)
     evaluator = _EVALUATORS.get(key)
@@ -42,12 +42,12 @@ def evaluate_in_worker(spec: TuningSpec, x) -> Outcome:
 
         threadpool_limits(1)
         evaluator = _EVALUATORS[key] = Evaluator(spec)
-    return evaluator(x)
+    return evaluator(x, order)
 
 
 class _Executor:
-    def map(self, xs) -> list[Outcome]:
-        return self.gather([self.submit(x) for x in xs])
+    def map(self, xs, order=None) -> list[Outcome]:
+        return self.gather([self.submit(x, order) for x in xs])
 
 
 class Serial(_Executor):
@@ -59,14 +59,14 @@ class Serial(_Executor):
         self.spec, self.evaluator = spec, evaluator
         self.where = "in this process"
 
-    def submit(self, x):
-        return x
+    def submit(self, x, order=None):
+        return x, order
 
     def gather(self, pending) -> list[Outcome]:
         outcomes = []
-        for x in pending:
+        for x, order in pending:
             try:
-                outcomes.append(self.evaluator(x))
+                outcomes.append(self.evaluator(x, order))
             except Exception as error:  # noqa: BLE001 (a candidate's fault is recorded, not fatal)
                 outcomes.append(failed(self.spec, _describe(error)))
         return outcomes
@@ -88,22 +88,21 @@ class Processes(_Executor):
     def _start(self):
         self._pool = start_pool(self.workers)
 
-    def submit(self, x):
+    def submit(self, x, order=None):
         from concurrent.futures.process import BrokenProcessPool
 
         if self._pool is None:
             self._start()
         try:
-            return x, self._pool.submit(evaluate_in_worker, self.spec, x)
+            return x, order, self._pool.submit(evaluate_in_worker, self.spec, x, order)
         except BrokenProcessPool:  # a worker died on an earlier point of the batch: run it later
-            return x, None
+            return x, order, None
 
     def gather(self, pending) -> list[Outcome]:
         from concurrent.futures.process import BrokenProcessPool
 
-        xs = [x for x, _ in pending]
         outcomes, broken = [], []
-        for k, (_, future) in enumerate(pending):
+        for k, (_, _, future) in enumerate(pending):
             try:
                 if future is None:
                     raise BrokenProcessPool("not started: the pool was broken")
@@ -118,8 +117,9 @@ class Processes(_Executor):
             # again alone, in a fresh pool, so only the culprit fails
             self._restart()
             for k in broken:
+                x, order, _ = pending[k]
                 try:
-                    outcomes[k] = self._pool.submit(evaluate_in_worker, self.spec, xs[k]).result()
+                    outcomes[k] = self._pool.submit(evaluate_in_worker, self.spec, x, order).result()
                 except BrokenProcessPool:
                     outcomes[k] = failed(self.spec, "the worker process died during this evaluation")
                     self._restart()
@@ -147,8 +147,8 @@ class Dask(_Executor):
         self.where = f"on Dask ({address})"
         self._client, self._cluster = connect_dask(address, workers)
 
-    def submit(self, x):
-        return self._client.submit(evaluate_in_worker, self.spec, list(x), pure=False)
+    def submit(self, x, order=None):
+        return self._client.submit(evaluate_in_worker, self.spec, list(x), order, pure=False)
 
     def gather(self, pending) -> list[Outcome]:
         return [self._result(future) for future in pending]

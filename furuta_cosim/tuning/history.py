@@ -26,6 +26,12 @@ def record(index: int, x, names, outcome: Outcome, origin: str = "", surrogate=N
                        "value": outcome.value, "margin": outcome.margin,
                        **({"criteria": outcome.criteria} if outcome.criteria is not None else {}),
                        "constraints": outcome.constraints, "metrics": outcome.metrics,
+                       # which runs broke a constraint (the next batches run them first), and
+                       # a run stopped early with the runs it left out
+                       "violated": outcome.violated, "stopped": outcome.stopped,
+                       "skipped": outcome.skipped,
+                       # refused by the loop's exact checks (bo checks them, not learns them)
+                       "known": outcome.known,
                        "origin": origin, "surrogate": surrogate,
                        "wall_time": outcome.wall_time, "worker": outcome.worker, "error": outcome.error})
 
@@ -126,6 +132,19 @@ def _damage(record, index: int, bounds) -> str | None:
     return None
 
 
+
+
+def failing_first(records, labels) -> list[str]:
+    """The run labels, the one broken most often in ``records`` first (ties: as given): the
+    order a candidate's runs go in, so that one that fails is likely to fail, and stop, first."""
+    counts = dict.fromkeys(labels, 0)
+    for r in records:
+        violated = r.get("violated")
+        for label in violated if isinstance(violated, list) else ():
+            if label in counts:
+                counts[label] += 1
+    position = {label: k for k, label in enumerate(labels)}
+    return sorted(labels, key=lambda label: (-counts[label], position[label]))
 
 
 def replayed(records, xs, offset: int) -> None:

@@ -48,8 +48,17 @@ class Run:
     def batch(self) -> int:
         return self.spec.optimizer.batch
 
-    def submit(self, x):
-        return self.executor.submit(x)
+    def order(self, first: int) -> list[str]:
+        """The order of a candidate's runs for a batch that starts at evaluation ``first``:
+        the run broken most often before it goes first (a function of the history before the
+        batch, so a resumed run orders its runs as the uninterrupted one did)."""
+        from furuta_cosim.tuning.history import failing_first
+
+        return failing_first(self.records[:first], [label for label, _, _ in self.evaluator.runs()])
+
+    def submit(self, x, first: int):
+        """Send ``x`` of the batch that starts at evaluation ``first`` to a worker."""
+        return self.executor.submit(x, self.order(first))
 
     def collect(self, xs, pending, origins, surrogate=None) -> list[float]:
         """Wait for a batch's outcomes (the evaluation clock: time spent waiting), record them
@@ -65,8 +74,11 @@ class Run:
         self.report()
         return [outcome.objective for outcome in outcomes]
 
-    def evaluate(self, xs, origin: str) -> list[float]:
-        return self.collect(xs, [self.submit(x) for x in xs], [origin] * len(xs))
+    def evaluate(self, xs, origin: str, first: int | None = None) -> list[float]:
+        """Evaluate and record ``xs``, a batch that starts at evaluation ``first`` (default:
+        the next one)."""
+        first = len(self.records) if first is None else first
+        return self.collect(xs, [self.submit(x, first) for x in xs], [origin] * len(xs))
 
     def report(self) -> None:
         self.clock.save()
@@ -129,7 +141,7 @@ class Bayes(Method):
         run.clock["optimizer"] += time.perf_counter() - started
         if todo:  # every point is known: all at once, whatever the workers
             xs = [x for x, _ in todo]
-            run.collect(xs, [run.submit(x) for x in xs], [o for _, o in todo])
+            run.collect(xs, [run.submit(x, len(design)) for x in xs], [o for _, o in todo])
         names = [c.name for c in spec.objective.criteria]
         parego = spec.objective.type == "tradeoff" and front_search(spec) == "parego"
         kind = HypervolumeBO if spec.objective.type == "tradeoff" and not parego else ConstrainedBO
@@ -159,7 +171,7 @@ class Bayes(Method):
                     xs.append(None)
                     continue
                 xs.append(x)
-                pending.append(run.submit(x))
+                pending.append(run.submit(x, first))
             fresh = [x for x in xs if x is not None]
             run.collect(fresh, pending, [proposal.origin] * len(fresh), proposal.surrogate)
 
@@ -175,9 +187,10 @@ class Random(Method):
 
         sampler = RandomSearch(run.evaluator.space.bounds, run.seed)
         while len(run.records) < run.n_calls:
-            first = len(run.records)
-            run.evaluate([sampler.point(k) for k in range(first, min(first + run.batch, run.n_calls))],
-                         "random")
+            # batches of run.batch from evaluation 0, also after a resume in the middle of one
+            start = len(run.records) - len(run.records) % run.batch
+            end = min(start + run.batch, run.n_calls)
+            run.evaluate([sampler.point(k) for k in range(len(run.records), end)], "random", start)
 
 
 class _Spent(Exception):
@@ -207,7 +220,8 @@ class DifferentialEvolution(Method):
             remaining = run.n_calls - len(run.records)
             if xs and remaining <= 0:
                 raise _Spent()
-            ys += run.evaluate(xs[:remaining], "differential evolution")
+            # a generation is one batch: its runs are ordered by the history before it
+            ys += run.evaluate(xs[:remaining], "differential evolution", len(run.records) - len(ys))
             if len(xs) > remaining:
                 raise _Spent()
             return ys

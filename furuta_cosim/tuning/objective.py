@@ -3,7 +3,16 @@
 Cheap checks come first: the loop's stability with a margin on the design model (the
 augmented matrix Abar, and the sampled loop at the control period) and, when asked, the
 controller's own stability cost microseconds, so an unstable candidate never reaches a
-co-simulation.
+co-simulation (``known`` in its outcome: ``bo`` checks these for its candidates itself).
+
+A candidate's runs stop as soon as it is known infeasible (``constraints.stop_early``): a run
+whose running ISE, IAE, ITAE, input energy or peak is past its constraint's bound stops there
+(cosim/limits.py), and once one run has broken a constraint the candidate's other runs are
+skipped. Its outcome then says which run stopped, when and why (``stopped``), which were not
+run (``skipped``), and has no ``value``; its violation and margin are those of what was run,
+lower bounds of the full runs'. The runs go in the order they are given (``order``: the one
+broken most often so far first), and a candidate that is feasible scores the same in any order.
+Baselines (:meth:`Evaluator.score`) always run to the end.
 
 Each outcome carries what a constrained optimizer models separately (tuning/optimizers.py):
 ``value``, the objective computed whether or not the candidate is feasible (None where it
@@ -52,6 +61,10 @@ class Outcome:
     value: float | None = None      # the objective, feasible or not (None: not computable)
     margin: float = MARGIN_CAP      # largest normalized constraint slack, in [-1, 1] (<= 0: met)
     criteria: dict | None = None    # tradeoff: each criterion's value (None where not computable)
+    violated: list = field(default_factory=list)   # the runs that broke a constraint
+    stopped: dict | None = None     # a run stopped early: {"run", "t", "metric", "value", "bound"}
+    skipped: list = field(default_factory=list)    # the runs not simulated once one had failed
+    known: bool = False             # decided by the loop's exact checks, never co-simulated
 
 
 def _margin(slacks) -> float:
@@ -124,45 +137,53 @@ class Evaluator:
         return values, violation, slacks
 
     # -- one candidate ---------------------------------------------------------------------
-    def __call__(self, x) -> Outcome:
+    def __call__(self, x, order=None) -> Outcome:
+        """A candidate's outcome: its runs in ``order`` (labels of :meth:`runs`, default the
+        spec's), each stopped as soon as a constraint is known broken
+        (``constraints.stop_early``), the rest then skipped."""
         started = time.perf_counter()
-        outcome = self._score(x)
+        outcome = self._score(x, order)
         outcome.wall_time = time.perf_counter() - started
         outcome.worker = os.getpid()
         return outcome
 
-    def _score(self, x) -> Outcome:
+    def _score(self, x, order=None) -> Outcome:
         try:
             controller = self.space.controller(x)
         except (DesignError, np.linalg.LinAlgError, ValueError) as error:
             return Outcome(self.spec.constraints.penalty * 2, False, {}, {},
-                           f"no controller at this point: {error}")
-        return self.score(controller)
+                           f"no controller at this point: {error}", known=True)
+        return self._score_controller(controller, order, early=True)
 
     def score(self, controller: GeneralizedController) -> Outcome:
-        """The objective and constraints of any controller (a candidate, or a baseline)."""
+        """The objective and constraints of any controller (a candidate, or a baseline), every
+        run to its end."""
         started = time.perf_counter()
         outcome = self._score_controller(controller)
         outcome.wall_time = time.perf_counter() - started
         return outcome
 
-    def _score_controller(self, controller: GeneralizedController) -> Outcome:
+    def _score_controller(self, controller: GeneralizedController, order=None,
+                          early: bool = False) -> Outcome:
         penalty = self.spec.constraints.penalty
         try:
             constraints, violation, slacks = self._loop_checks(controller)
         except (DesignError, np.linalg.LinAlgError, ValueError) as error:
-            return Outcome(penalty * 2, False, {}, {}, f"the loop cannot be analysed: {error}")
+            return Outcome(penalty * 2, False, {}, {}, f"the loop cannot be analysed: {error}", known=True)
         if not math.isfinite(violation):
-            return Outcome(penalty * 2, False, constraints, {}, "the loop's modes are not finite")
+            return Outcome(penalty * 2, False, constraints, {}, "the loop's modes are not finite",
+                           known=True)
         if violation > 0:
             return Outcome(penalty + min(violation, penalty), False, constraints,
-                           margin=_margin(slacks))
+                           margin=_margin(slacks), known=True)
         if self.spec.objective.type == "spectral":
             # the paper's objective as stated: the largest |Re| of the loop's modes
             modes = spectral_abscissa(augmented(self.model, controller)[0], controller.period)
             value = float(np.max(np.abs(modes.real)))
             return Outcome(value, True, constraints, value=value, margin=_margin(slacks))
-        return self._scenarios(controller, constraints, slacks)
+        # the loop's constraints are met and known exactly (the optimizer checks them itself):
+        # the margin a surrogate models is the co-simulated constraints' alone
+        return self._scenarios(controller, constraints, [], order, early)
 
     def prefilters(self, controller: GeneralizedController) -> dict[str, float]:
         """The prefilter F of ``controller`` for each output the spec's runs track."""
@@ -172,51 +193,114 @@ class Evaluator:
         return {name: prefilter(self.model, controller, name) for name in tracked}
 
     def _scenarios(self, controller: GeneralizedController, constraints: dict,
-                   slacks: list) -> Outcome:
+                   slacks: list, order=None, early: bool = False) -> Outcome:
         from furuta_cosim.controllers import ControllerFile
         from furuta_cosim.cosim import compile_controller, evaluate
         from furuta_cosim.design.prefilter import prefilter
 
         spec, penalty = self.spec, self.spec.constraints.penalty
-        scores, metrics, violation, slacks = [], {}, 0.0, list(slacks)
-        for label, prepared, _ in self.runs():
+        early = early and spec.constraints.stop_early is not None
+        scores, metrics, violation, slacks, violated = [], {}, 0.0, list(slacks), []
+        runs = self.ordered(order)
+        for position, (label, prepared, _) in enumerate(runs):
             session = self._session(prepared)
             try:
                 F = prefilter(self.model, controller, prepared.tracked)
             except DesignError as error:
                 return Outcome(penalty * 2, False, constraints, metrics, f"{label}: no prefilter: {error}")
             cfile = ControllerFile(controller, spec.period, spec.model, prepared.tracked, F)
+            limits = self.limits(label, prepared) if early else None
             try:
-                result = evaluate(prepared, session, compile_controller(prepared, cfile))
+                result = evaluate(prepared, session, compile_controller(prepared, cfile), limits=limits)
             except (ConfigError, FmuError) as error:
                 return Outcome(penalty * 2, False, constraints, metrics, f"{label}: {error}")
-            metrics[label] = json_safe(result.metrics)
             if result.failure:
+                metrics[label] = json_safe(result.metrics)
                 violation += 1.0
                 constraints[f"{label}.diverged"] = True
                 slacks.append(math.inf)
+                violated.append(label)
                 scores.append([math.inf] * len(spec.objective.criteria))
                 continue
-            for signal, bound in spec.constraints.max_abs:
-                value = result.metrics.get(_peak(signal), math.inf)
-                constraints[f"{label}.{signal}.max_abs"] = value
-                violation += max(0.0, value / bound - 1.0)
-                slacks.append(value / bound - 1.0)
-            for metric, factor in spec.constraints.no_worse_than:
-                reference = self.baseline_metrics()[label].get(metric, math.inf)
-                value = result.metrics.get(metric, math.inf)
-                ratio = value / reference if reference > 0 else (0.0 if value <= 0 else math.inf)
-                constraints[f"{label}.{metric}/{Path(spec.constraints.baseline).stem}"] = ratio
-                violation += max(0.0, ratio / factor - 1.0)
-                slacks.append(ratio / factor - 1.0)
+            if result.stopped:
+                # what is known of a run stopped early: its watched metrics, each a lower bound
+                watched = {m: result.metrics[m] for m in limits if m in result.metrics}
+                metrics[label] = json_safe(watched)
+                found = self._constraint_slacks(label, watched, constraints)
+                violation += sum(max(0.0, slack) for slack in found)
+                slacks += found
+                violated.append(label)
+                stopped = dict(result.stopped, run=label)
+                return self._outcome([], violation, constraints, metrics, slacks, violated,
+                                     stopped=stopped, skipped=[run[0] for run in runs[position + 1:]])
+            metrics[label] = json_safe(result.metrics)
+            found = self._constraint_slacks(label, result.metrics, constraints)
+            violation += sum(max(0.0, slack) for slack in found)
+            slacks += found
             if spec.constraints.requirements and not result.passed:
                 failed = [k for k, v in result.requirements.items() if not v["pass"]]
                 constraints[f"{label}.requirements"] = failed
                 violation += 0.1 * len(failed)
+                found.append(0.1 * len(failed))
                 slacks.append(0.1 * len(failed))
+            if any(slack > 0 for slack in found):
+                violated.append(label)
+                if early and position + 1 < len(runs):  # infeasible: the other runs cannot help
+                    return self._outcome([], violation, constraints, metrics, slacks, violated,
+                                         skipped=[run[0] for run in runs[position + 1:]])
             scores.append([self._criterion(criterion, label, result.metrics)
                            for criterion in spec.objective.criteria])
-        return self._outcome(scores, violation, constraints, metrics, slacks)
+        if order is not None:  # the outcome reads as if the runs went in the spec's order
+            position = {label: k for k, (label, _, _) in enumerate(self.runs())}
+            ranks = [position[label] for label, _, _ in runs]
+            scores = [score for _, score in sorted(zip(ranks, scores))]
+        return self._outcome(scores, violation, constraints, metrics, slacks, violated)
+
+    def _constraint_slacks(self, label: str, values: dict, constraints: dict) -> list[float]:
+        """The slack of each co-simulated constraint on one run (> 0: broken), recorded in
+        ``constraints``; a metric the run does not have counts as infinite."""
+        spec, found = self.spec, []
+        for signal, bound in spec.constraints.max_abs:
+            value = values.get(_peak(signal), math.inf)
+            constraints[f"{label}.{signal}.max_abs"] = value
+            found.append(value / bound - 1.0)
+        for metric, factor in spec.constraints.no_worse_than:
+            reference = self.baseline_metrics()[label].get(metric, math.inf)
+            value = values.get(metric, math.inf)
+            ratio = value / reference if reference > 0 else (0.0 if value <= 0 else math.inf)
+            constraints[f"{label}.{metric}/{Path(spec.constraints.baseline).stem}"] = ratio
+            found.append(ratio / factor - 1.0)
+        return found
+
+    def limits(self, label: str, prepared) -> dict[str, float]:
+        """The bounds a run of ``label`` is watched against (cosim/limits.py): each constraint
+        on a metric that only grows, at the value where its slack passes
+        ``constraints.stop_early`` (a run past it has failed by at least that much)."""
+        from furuta_cosim.cosim.limits import monotone
+
+        spec, past = self.spec, self.spec.constraints.stop_early
+        if past is None:
+            return {}
+        found = {}
+        for signal, bound in spec.constraints.max_abs:
+            if monotone(_peak(signal), prepared.outputs):
+                found[_peak(signal)] = bound * (1.0 + past)
+        for metric, factor in spec.constraints.no_worse_than:
+            reference = self.baseline_metrics()[label].get(metric)
+            if monotone(metric, prepared.outputs) and isinstance(reference, float) \
+                    and math.isfinite(reference) and reference > 0:
+                bound = reference * factor * (1.0 + past)
+                found[metric] = min(bound, found.get(metric, math.inf))
+        return found
+
+    def ordered(self, order=None) -> list:
+        """The runs, those named in ``order`` first and in that order (the ones that fail
+        most often, tuning/methods.py's scenario_order), then the rest as the spec has them."""
+        runs = self.runs()
+        if not order:
+            return list(runs)
+        rank = {label: k for k, label in enumerate(order)}
+        return sorted(runs, key=lambda run: rank.get(run[0], len(rank)))
 
     def by_variant(self, metrics: dict) -> list[float | None]:
         """The objective of one controller on each plant variant alone, from its metrics by run
@@ -254,10 +338,12 @@ class Evaluator:
             total += term.weight * value
         return total
 
-    def _outcome(self, scores, violation, constraints, metrics, slacks) -> Outcome:
+    def _outcome(self, scores, violation, constraints, metrics, slacks, violated=(), *,
+                 stopped=None, skipped=()) -> Outcome:
         """The outcome from each run's criteria: aggregated over the runs; the objective of a
         tradeoff is the mean of its criteria (what one number can say: random search's and the
-        progress line's; the front is what the run is for)."""
+        progress line's; the front is what the run is for). A stopped candidate has no value:
+        its runs did not all go to the end."""
         spec, penalty = self.spec, self.spec.constraints.penalty
         criteria = {}
         for k, criterion in enumerate(spec.objective.criteria):
@@ -268,11 +354,12 @@ class Evaluator:
         known = [v for v in criteria.values() if v is not None]
         total = float(np.mean(known)) if len(known) == len(criteria) else None
         tradeoff = criteria if spec.objective.type == "tradeoff" else None
-        if violation > 0 or total is None:
+        extra = dict(margin=_margin(slacks), criteria=tradeoff, violated=list(violated),
+                     stopped=stopped, skipped=list(skipped))
+        if violation > 0 or total is None or stopped or skipped:
             return Outcome(penalty + min(violation, penalty), False, constraints, metrics,
-                           value=total, margin=_margin(slacks), criteria=tradeoff)
-        return Outcome(total, True, constraints, metrics, value=total, margin=_margin(slacks),
-                       criteria=tradeoff)
+                           value=None if stopped or skipped else total, **extra)
+        return Outcome(total, True, constraints, metrics, value=total, **extra)
 
     def baseline_metrics(self) -> dict:
         """The metrics of the constraints' baseline controller on every run (computed once)."""

@@ -8,9 +8,14 @@ a Matern 5/2 kernel with a length scale per parameter, on the unit cube):
 - one of the objective, on every evaluated point where it could be computed, feasible or
   not: near the boundary of the feasible set, where the best controllers are, the infeasible
   side tells as much about the objective as the feasible one;
-- one of the feasibility margin (tuning/objective.py: the largest normalized constraint
-  slack, <= 0 when every constraint is met), on every point: failures count as clearly
-  infeasible.
+- one of the feasibility margin (tuning/objective.py: the largest normalized slack of the
+  co-simulated constraints, <= 0 when every one is met), on every point but those the loop's
+  exact checks refused: failures count as clearly infeasible.
+
+The loop's own constraints (its stability margin on the design model, the sampled loop's
+abscissa, the controller's stability) are not learned: they cost a millisecond, so the
+acquisition's candidates are checked exactly, best first, and the best one that passes is
+proposed (``screen``); a candidate that fails them is never co-simulated.
 
 The acquisition is Expected Improvement over the best feasible value times the probability of
 feasibility; until a feasible point is known, the probability alone. It is maximized over
@@ -47,8 +52,6 @@ SUCCESSES = 3
 REGIONS = ("trust", "global")
 # a tradeoff's search: auto is ehvi for two criteria, parego for more (tuning/mobo.py, pareto.py)
 FRONTS = ("auto", "ehvi", "parego")
-# the best this many candidates by acquisition are checked with the exact cheap constraint
-SCREENED = 64
 LENGTH_BOUNDS = (1e-2, 1e2)
 
 
@@ -235,8 +238,11 @@ class ConstrainedBO:
         previous = previous if isinstance(previous, dict) else {}
         refit = number % REFIT_EVERY == 0
         margins = np.array([_number(r.get("margin"), 1.0) for r in records])
-        feasibility = _Surrogate(X, margins, _theta(previous.get("feasibility"), self.d), refit,
-                                 self.restarts, fit_seed)
+        # a point the loop's exact checks refused is left out: those constraints are checked
+        # for every candidate (screen), not learned
+        modelled = [k for k, r in enumerate(records) if not r.get("known")] or list(range(len(records)))
+        feasibility = _Surrogate(X[modelled], margins[modelled], _theta(previous.get("feasibility"), self.d),
+                                 refit, self.restarts, fit_seed)
         return _Batch(rng, fit_seed, X, previous, refit, margins, feasibility)
 
     def _candidates(self, center, length, weights, rng, n) -> np.ndarray:
@@ -263,10 +269,11 @@ class ConstrainedBO:
         return closer if closer_score > score else top
 
     def _pick(self, C, scores) -> tuple[np.ndarray, float]:
-        """The best candidate that passes the exact cheap check among the best SCREENED (its
-        score), or the best one (score -inf) when none does."""
+        """The best candidate by acquisition that passes the exact cheap check (its score),
+        or the best one (score -inf) when none does. Candidates are checked best first, so
+        the check costs one candidate's where the acquisition's best passes."""
         order = np.argsort(-scores, kind="stable")
-        for k in order[:SCREENED]:
+        for k in order:
             if self.screen is None or self.screen(self._box(C[k])):
                 return C[k], float(scores[k])
         return C[order[0]], -math.inf

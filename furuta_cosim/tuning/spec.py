@@ -78,6 +78,9 @@ class Constraints:
     penalty: float = 1.0e3             # objective of an infeasible candidate (plus its violation)
     baseline: str | None = None        # no_worse_than: this controller's metrics, per run,
     no_worse_than: tuple[tuple[str, float], ...] = ()   # times these factors bound the candidate's
+    # a candidate's run stops once a constraint on a metric that only grows is broken by this
+    # slack (tuning/objective.py, Evaluator.limits); None: every run goes to its end
+    stop_early: float | None = 0.0
 
 
 # log and lqr bounds are exponents of 10, at most this large in magnitude
@@ -88,6 +91,7 @@ MAX_STATES = 20            # controller states n_xc
 MAX_CALLS = 100_000        # evaluations of one run
 MAX_SEED = 2**32 - 1       # numpy's and scipy's seeds
 MAX_PENALTY = 1.0e9        # an infeasible score stays finite (penalty * 2 plus violations)
+MAX_STOP = 1.0e6           # constraints.stop_early: a slack, at most this
 
 
 @dataclass(frozen=True)
@@ -586,7 +590,7 @@ def _criteria(check: Checker, raw, controller) -> tuple[Criterion, ...]:
 def _constraints(check: Checker, value) -> Constraints:
     section = check.mapping(value, "constraints", optional=("stability_margin", "controller_stable",
                                                             "max_abs", "requirements", "penalty",
-                                                            "no_worse_than"))
+                                                            "no_worse_than", "stop_early"))
     if section is None:
         return Constraints()
     margin = check.number(section.get("stability_margin", 0.0), "constraints.stability_margin", minimum=0.0)
@@ -608,8 +612,17 @@ def _constraints(check: Checker, value) -> Constraints:
             ratios = check.numbers(relative["metrics"], "constraints.no_worse_than.metrics", positive=True)
             factors = tuple((metric, ratio) for metric, ratio in ratios.items()
                             if checked(check, metric, f"constraints.no_worse_than.metrics.{metric}"))
+    stop = section.get("stop_early", Constraints.stop_early)
+    if stop is False:
+        stop = None
+    elif stop is True or not isinstance(stop, (int, float)):
+        check.fail("constraints.stop_early", f"expected false or a slack >= 0 (how far past a "
+                                             f"constraint a run stops), got {stop!r}")
+        stop = None
+    else:
+        stop = check.number(stop, "constraints.stop_early", minimum=0.0, maximum=MAX_STOP)
     return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
-                       flags["requirements"], penalty or Constraints.penalty, baseline, factors)
+                       flags["requirements"], penalty or Constraints.penalty, baseline, factors, stop)
 
 
 # the optimizer's numeric settings and their checks (the defaults: OptimizerSettings)
