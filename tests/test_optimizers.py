@@ -180,3 +180,20 @@ def test_the_convergence_figure_is_scaled_to_the_gain_and_shows_infeasible_point
     assert len(above) == 1 and list(above[0].get_ydata()) == [high, high]  # 3.8 and 1.2, on the edge
     crosses = [line for line in below.get_lines() if line.get_label() == "infeasible evaluation"]
     assert list(crosses[0].get_xdata()) == [6] and list(crosses[0].get_ydata()) == [0.4]
+
+
+@pytest.mark.parametrize("n, d", [(150, 11), (12, 3)])
+def test_the_surrogates_prediction_is_scikit_learns(n, d):
+    """The acquisition's own predict gives scikit-learn's mean and standard deviation, fitted
+    and after a believed point, a constant history included."""
+    rng = np.random.default_rng(n)
+    X = rng.random((n, d))
+    for y in (np.sin(3 * X.sum(axis=1)) + 0.01 * rng.standard_normal(n), np.full(n, 2.5)):
+        surrogate = optimizers._Surrogate(X, y, None, True, 0, 0)
+        for _ in range(2):
+            C = rng.random((300, d))
+            mean, std = surrogate.gp.predict(C, return_std=True)
+            ours = surrogate.predict(C)
+            np.testing.assert_allclose(ours[0], mean, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(ours[1], std, rtol=1e-6, atol=1e-12)
+            surrogate.believe(C[0])
