@@ -4,6 +4,12 @@ beside the LQR scored alike and the best value known, in one run.
     python tools/bench_tune.py [--specs effort robust-effort] [--seeds 10] [--first-seed 0] [--calls 150]
                                [--workers 2] [--methods ours,global,before,random,de,skopt]
                                [--best-known 3000] [--kernel NAME] [--plant PLANT] [-o FOLDER]
+    python tools/bench_tune.py --against REV [--specs ...] [--seeds 10] [--best-known 0] [--plant PLANT]
+
+``--against REV`` times the main job as a user runs it, ``furuta-cosim tune SPEC --seed S``
+(one process from start to exit: imports, the baselines, the search, summary and figures),
+for this checkout and for revision REV of its git history (unpacked into the output folder),
+seed by seed in turn, and prints each one's wall time and best with the ratios this / REV.
 
 Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``):
 
@@ -36,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -186,6 +193,117 @@ def _ask_tell(spec, folder: Path, calls: int, workers: int, batch: int, ask, tel
     return document
 
 
+def unpack(revision: str, folder: Path) -> Path:
+    """Revision ``revision`` of this checkout's history as files under ``folder``."""
+    target = folder / f"revision-{revision}"
+    if not (target / "furuta_cosim").is_dir():
+        target.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", revision], capture_output=True)
+        if archive.returncode:
+            raise SystemExit(f"--against {revision}: git archive failed: "
+                             f"{archive.stderr.decode(errors='replace').strip()}")
+        subprocess.run(["tar", "-x", "-C", str(target)], input=archive.stdout, check=True)
+    return target
+
+
+def _this() -> str:
+    """This checkout's revision, with ``+`` when it has uncommitted changes."""
+    def git(*words):
+        return subprocess.run(["git", "-C", str(ROOT), *words], capture_output=True, text=True).stdout.strip()
+
+    return (git("rev-parse", "--short", "HEAD") or "this checkout") + ("+" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def main_job(root: Path, spec: str, seed: int, args, folder: Path) -> tuple[float, dict]:
+    """``furuta-cosim tune SPEC --seed SEED`` of the code under ``root``: wall seconds and the
+    summary it printed."""
+    command = [sys.executable, "-m", "furuta_cosim", "tune", spec, "--seed", str(seed),
+               "--n-calls", str(args.calls), "--workers", str(args.workers), "-o", str(folder), "--json",
+               *(["--plant", args.plant] if args.plant else [])]
+    started = time.perf_counter()
+    done = subprocess.run(command, env={**os.environ, "PYTHONPATH": str(root)}, cwd=root,
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - started
+    if done.returncode not in (0, 1):
+        raise SystemExit(f"{' '.join(command)} (under {root}) exited {done.returncode}:\n{done.stderr[-2000:]}")
+    return wall, json.loads(done.stdout)
+
+
+def against(args, work: Path) -> dict:
+    """The main job of this checkout and of revision ``args.against``, seed by seed in turn."""
+    roots = {_this(): ROOT, args.against: unpack(args.against, work)}
+    results = {}
+    for name in args.specs:
+        rows = {label: {"wall": [], "best": []} for label in roots}
+        lqr = None
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            for label, root in (roots.items() if seed % 2 == 0 else reversed(roots.items())):
+                wall, document = main_job(root, name, seed, args, work / Path(name).stem / label / f"seed-{seed}")
+                rows[label]["wall"].append(wall)
+                rows[label]["best"].append(best_of(document))
+                for baseline in (document.get("baselines") or {}).values():
+                    if lqr is None and baseline.get("feasible"):
+                        lqr = baseline["objective"]
+                print(f"  {name} {label} seed {seed}: best {rows[label]['best'][-1]}, {wall:.1f} s",
+                      file=sys.stderr, flush=True)
+        known = _known(args, work, name, [v for row in rows.values() for v in row["best"]])
+        results[name] = {"rows": rows, "lqr": lqr, "best_known": known}
+    return results
+
+
+def _known(args, work: Path, name: str, bests) -> float | None:
+    """The best known: the lowest of ``bests`` (every run's best), or differential
+    evolution's with --best-known evaluations when lower."""
+    found = [v for v in bests if v is not None]
+    known = None
+    if args.best_known:
+        from dataclasses import replace
+
+        spec = load_spec(name, plant=args.plant)
+        started = time.perf_counter()
+        # the spec's budget sets differential evolution's population (at most 15 per
+        # parameter): the long run gets the population of a long run
+        long = replace(spec, optimizer=replace(spec.optimizer, n_calls=args.best_known))
+        known = best_of(plain(long, work / Path(name).stem / "best-known", 0, args.best_known,
+                              args.workers, "de"))
+        print(f"  {name} de {args.best_known}: best {known}, {time.perf_counter() - started:.1f} s",
+              file=sys.stderr, flush=True)
+    if found and (known is None or min(found) < known):
+        known = min(found)
+    return known
+
+
+def against_table(results: dict, args) -> list[str]:
+    lines = []
+    for name, data in results.items():
+        rows, lqr, known = data["rows"], data["lqr"], data["best_known"]
+        labels = list(rows)
+        lines += ["", f"{name}: the main job (`furuta-cosim tune {name} --seed S`, {args.calls} calls, "
+                      f"{args.workers} workers, seeds {args.first_seed}-{args.first_seed + args.seeds - 1}); "
+                      f"LQR {_f(lqr)}; best known {_f(known)}",
+                  "", "| code | wall median (s) | wall per seed | best median | worst | median vs best known "
+                      "| seeds <= LQR | best per seed |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for label in labels:
+            wall, best = rows[label]["wall"], rows[label]["best"]
+            found = [v for v in best if v is not None]
+            median = statistics.median(found) if found else None
+            worst = max(found) if found and len(found) == len(best) else None
+            versus = f"{(median / known - 1) * 100:+.2f} %" if median and known else "-"
+            beat = f"{sum(1 for v in best if v is not None and lqr is not None and v <= lqr)}/{len(best)}"
+            lines.append(f"| {label} | {statistics.median(wall):.1f} | {' '.join(f'{w:.1f}' for w in wall)} | "
+                         f"{_f(median)} | {_f(worst)} | {versus} | {beat} | {' '.join(_f(v) for v in best)} |")
+        this, other = rows[labels[0]], rows[labels[1]]
+        ratios = [a / b for a, b in zip(this["wall"], other["wall"])]
+        mine = statistics.median([v for v in this["best"] if v is not None] or [math.nan])
+        theirs = statistics.median([v for v in other["best"] if v is not None] or [math.nan])
+        lines += ["", f"{labels[0]} / {labels[1]}: wall time, ratio of medians "
+                      f"{statistics.median(this['wall']) / statistics.median(other['wall']):.3f}, "
+                      f"median of the seeds' ratios {statistics.median(ratios):.3f}; best, ratio of "
+                      f"medians {mine / theirs:.4f}"]
+    return lines
+
+
 def best_of(document: dict) -> float | None:
     return document["best"]["objective"] if document.get("best") else None
 
@@ -216,22 +334,7 @@ def measure(args, work: Path) -> dict:
                         lqr = baseline["objective"]
                 print(f"  {name} {method} seed {seed}: best {rows[method][-1]}, "
                       f"{time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
-        known = None
-        if args.best_known:
-            started = time.perf_counter()
-            # the spec's budget sets differential evolution's population (at most 15 per
-            # parameter): the long run gets the population of a long run
-            from dataclasses import replace
-
-            long = replace(spec, optimizer=replace(spec.optimizer, n_calls=args.best_known))
-            document = plain(long, work / Path(name).stem / "best-known", 0, args.best_known,
-                             args.workers, "de")
-            known = best_of(document)
-            print(f"  {name} de {args.best_known}: best {known}, {time.perf_counter() - started:.1f} s",
-                  file=sys.stderr, flush=True)
-        found = [v for values in rows.values() for v in values if v is not None]
-        if found and (known is None or min(found) < known):
-            known = min(found)
+        known = _known(args, work, name, [v for values in rows.values() for v in values])
         results[name] = {"rows": rows, "lqr": lqr, "best_known": known,
                          "best_known_evaluations": args.best_known}
     results["optimizer_seconds_per_iteration"] = timer.points
@@ -294,6 +397,8 @@ def main() -> int:
     parser.add_argument("--plant", help="tune for this plant file or name (tune --plant): the LQR "
                                         "row is the spec's LQR designed again for it")
     parser.add_argument("-o", "--output", help="folder of the runs (default: a new temporary one)")
+    parser.add_argument("--against", metavar="REV",
+                        help="time the main job against revision REV of this checkout's history")
     parser.add_argument("--json", help=argparse.SUPPRESS)  # a child's results (--kernel)
     args = parser.parse_args()
     unknown = [m for m in args.methods if m not in METHODS]
@@ -307,11 +412,14 @@ def main() -> int:
     print(f"runs in {work}; OPENBLAS_CORETYPE={os.environ.get('OPENBLAS_CORETYPE', '(default)')}",
           file=sys.stderr)
     try:
-        results = measure(args, work)
+        results = against(args, work) if args.against else measure(args, work)
     except ConfigError as error:
         print("\n".join(error.problems), file=sys.stderr)
         return 2
     (work / "bench.json").write_text(json.dumps(results, indent=1) + "\n")
+    if args.against:
+        print("\n".join(against_table(results, args)))
+        return 0
     if args.json:
         Path(args.json).write_text(json.dumps(results) + "\n")
         return 0
