@@ -113,10 +113,16 @@ def test_the_pick_checks_beyond_any_fixed_number_of_candidates():
 def test_an_early_stopping_run_resumes_to_the_uninterrupted_history(tmp_path):
     spec = load_spec("effort")
     spec = dataclasses.replace(spec, optimizer=dataclasses.replace(spec.optimizer, n_initial_points=6))
-    tune(spec, tmp_path / "whole", n_calls=14, workers=1)
+    document = tune(spec, tmp_path / "whole", n_calls=14, workers=1)
     lines = (tmp_path / "whole" / "history.jsonl").read_text().splitlines(keepends=True)
     records = [json.loads(line) for line in lines]
     assert any(r.get("stopped") for r in records) and any(r.get("skipped") for r in records)
+    # the summary counts what was cut short, in numbers and in words
+    early = document["early"]
+    assert early["stopped"] == sum(1 for r in records if r["stopped"]) > 0
+    assert early["runs_skipped"] == sum(len(r["skipped"]) for r in records) > 0
+    assert f"cut short: {early['cut_short']} infeasible candidates" in \
+        (tmp_path / "whole" / "summary.md").read_text()
     for r in records:
         if r.get("stopped"):
             assert r["value"] is None and not r["feasible"] and r["stopped"]["run"] in r["violated"]

@@ -50,8 +50,8 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     document = {"spec": spec.name, "method": method, "seed": seed, "n_calls": n_calls,
                 "evaluations": len(records), "feasible": len(feasible), "failed": failures,
                 "objective": spec.objective.type, "optimizer_seconds": clock["optimizer"],
-                "evaluation_seconds": clock["evaluation"], "best": None, "baselines": baselines,
-                "warnings": warnings}
+                "evaluation_seconds": clock["evaluation"], "early": _early(records),
+                "best": None, "baselines": baselines, "warnings": warnings}
     if method == "bo" and spec.objective.type == "tradeoff":
         document["search"] = {"ehvi": "expected hypervolume improvement",
                               "parego": "ParEGO scalarizations"}[front_search(spec)]
@@ -79,6 +79,23 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     return document
 
 
+def _early(records) -> dict:
+    """What early stopping spared: candidates refused by the loop's exact checks (never
+    co-simulated), candidates whose runs stopped or were skipped, and the runs skipped."""
+    return {"known": sum(1 for r in records if r.get("known")),
+            "stopped": sum(1 for r in records if r.get("stopped")),
+            "cut_short": sum(1 for r in records if r.get("stopped") or r.get("skipped")),
+            "runs_skipped": sum(len(r.get("skipped") or ()) for r in records)}
+
+
+def _early_line(early) -> list[str]:
+    if not early or not (early["known"] or early["cut_short"]):
+        return []
+    return [f"- cut short: {early['cut_short']} infeasible candidates (a run stopped once broken: "
+            f"{early['stopped']}; {early['runs_skipped']} runs skipped), {early['known']} refused by "
+            "the loop's stability checks without a co-simulation"]
+
+
 def _matrices(controller) -> dict:
     return {"Ac": controller.Ac.tolist(), "Bc": controller.Bc.tolist(), "Cc": controller.Cc.tolist(),
             "Dc": controller.Dc.tolist(), "period": controller.period}
@@ -98,7 +115,7 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
              f"evaluations, {document['feasible']} feasible, {document['failed']} failed",
              f"- objective: {document['objective']}" + _described(spec.objective),
              f"- time: optimizer {document['optimizer_seconds']:.1f} s, waiting for evaluations "
-             f"{document['evaluation_seconds']:.1f} s", ""]
+             f"{document['evaluation_seconds']:.1f} s", *_early_line(document.get("early")), ""]
     if spec.plant is not None:
         lines += [f"On plant {spec.plant}: the controller is designed on its linearization."]
         lines += [f"- {note}." for note in spec.notes] + [""]
