@@ -27,6 +27,8 @@ Rows, per spec (every run ``tune`` of the spec with ``--seed S --n-calls CALLS``
 - ``skopt``: scikit-optimize's ``gp_minimize`` defaults (GP, gp_hedge, 10 random initial
   points), told the penalized objective (``penalty + violation`` when infeasible), one point
   at a time;
+- ``restart``, ``wide``, ``elsewhere``, ``design30``: variants of ``ours`` tried for the basin
+  that one seed found (:class:`Variant`), patched in for the run only;
 - the spec's first baseline (the LQR) scored alike, and the best known: differential evolution
   with ``--best-known`` evaluations (seed 0), or any run's best if lower.
 
@@ -58,7 +60,10 @@ from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
-METHODS = ("ours", "global", "before", "random", "de", "skopt")
+METHODS = ("ours", "global", "before", "random", "de", "skopt", "restart", "wide", "elsewhere", "design30")
+# variants of ours tried for the basin one seed found (docs: Performance), each a patch of the
+# shipped optimizer made here, for the run only
+VARIANTS = ("restart", "wide", "elsewhere", "design30")
 
 
 class Timer:
@@ -99,6 +104,79 @@ def ours(spec, folder: Path, seed: int, calls: int, workers: int, region: str, t
 
     spec = replace(spec, optimizer=replace(spec.optimizer, region=region))
     return tune(spec, folder, method="bo", n_calls=calls, seed=seed, workers=workers)
+
+
+class Variant:
+    """One of VARIANTS, patched into the optimizer for the run (``with Variant(name):``):
+
+    - ``restart``: the trust region starts again (at its first size, around the incumbent)
+      once it is below 0.5^4 of the cube instead of 0.5^7, so that a run restarts within its
+      budget;
+    - ``wide``: every second point of a batch is proposed in a region of at least the first
+      size (0.8) around the incumbent: one local point, one wide one;
+    - ``elsewhere``: every second point of a batch comes from a second region of the same
+      size around the best feasible point outside the incumbent's region (another basin; the
+      wide region when there is none);
+    - ``design30``: an initial design of 30 points instead of 15 (a change of the spec).
+    """
+
+    def __init__(self, name: str):
+        self.name, self._saved = name, {}
+
+    def __enter__(self):
+        bo = optimizers.ConstrainedBO
+        if self.name == "restart":
+            self._saved["REGION_MIN"] = optimizers.REGION_MIN
+            optimizers.REGION_MIN = 0.5 ** 4
+        elif self.name in ("wide", "elsewhere"):
+            self._saved["propose"], self._saved["_maximize"] = bo.propose, bo._maximize
+            propose, maximize, name = bo.propose, bo._maximize, self.name
+
+            def patched_propose(optimizer, records, *args, **kwargs):
+                optimizer._seen, optimizer._calls = records, 0
+                return propose(optimizer, records, *args, **kwargs)
+
+            def patched_maximize(optimizer, objective, feasibility, best, center, length, rng):
+                optimizer._calls += 1
+                if optimizer._calls % 2 == 0 and best is not None:
+                    center, length = _second_region(optimizer, name, center, length, objective or feasibility)
+                return maximize(optimizer, objective, feasibility, best, center, length, rng)
+
+            bo.propose, bo._maximize = patched_propose, patched_maximize
+        return self
+
+    def __exit__(self, *exc):
+        bo = optimizers.ConstrainedBO
+        if "REGION_MIN" in self._saved:
+            optimizers.REGION_MIN = self._saved["REGION_MIN"]
+        if "propose" in self._saved:
+            bo.propose, bo._maximize = self._saved["propose"], self._saved["_maximize"]
+
+
+def _second_region(optimizer, name, center, length, surrogate):
+    import numpy as np
+
+    wide = (center, max(length, optimizers.REGION_START))
+    if name == "wide":
+        return wide
+    records = optimizer._seen
+    X = np.array([optimizer._unit(r["x"]) for r in records])
+    scales = surrogate.length_scales()
+    half = 0.5 * length * scales / np.exp(np.mean(np.log(scales)))
+    outside = [k for k, r in enumerate(records) if r["feasible"] and np.any(np.abs(X[k] - center) > half)]
+    if not outside:
+        return wide
+    k = min(outside, key=lambda k: (records[k]["objective"], records[k]["index"]))
+    return X[k], length
+
+
+def variant(spec, folder: Path, seed: int, calls: int, workers: int, name: str) -> dict:
+    from dataclasses import replace
+
+    if name == "design30":
+        spec = replace(spec, optimizer=replace(spec.optimizer, n_initial_points=30))
+    with Variant(name):
+        return tune(spec, folder, method="bo", n_calls=calls, seed=seed, workers=workers)
 
 
 def plain(spec, folder: Path, seed: int, calls: int, workers: int, method: str) -> dict:
@@ -322,6 +400,8 @@ def measure(args, work: Path) -> dict:
                     region = "trust" if method == "ours" else "global"
                     with timer if method == "ours" else _nothing():
                         document = ours(spec, folder, seed, args.calls, args.workers, region)
+                elif method in VARIANTS:
+                    document = variant(spec, folder, seed, args.calls, args.workers, method)
                 elif method == "skopt":
                     document = skopt(spec, folder, seed, args.calls, args.workers)
                 elif method == "before":
@@ -390,7 +470,7 @@ def main() -> int:
                         help="seeds FIRST .. FIRST + SEEDS - 1 (to extend an earlier run)")
     parser.add_argument("--calls", type=int, default=150)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--methods", default=",".join(METHODS),
+    parser.add_argument("--methods", default=",".join(m for m in METHODS if m not in VARIANTS),
                         type=lambda text: [m for m in text.split(",") if m])
     parser.add_argument("--best-known", type=int, default=3000, help="evaluations of the de run (0: none)")
     parser.add_argument("--kernel", help="rerun 'ours' under OPENBLAS_CORETYPE=KERNEL and compare")
