@@ -50,7 +50,7 @@ def test_a_failed_candidate_stops_and_skips_its_other_runs_with_a_lower_bound(ef
     assert early.margin <= full.margin and early.margin > 0
     ratio = early.constraints["sine-follow.error.ISE/lqr-paper"]
     assert 1.05 < ratio <= full.constraints["sine-follow.error.ISE/lqr-paper"]
-    assert early.wall_time < full.wall_time
+    assert len(early.metrics) < len(full.metrics)  # fewer runs simulated (speed: tools/bench_tune.py)
 
 
 @pytest.mark.slow

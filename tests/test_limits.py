@@ -38,7 +38,7 @@ def test_a_run_past_a_bound_stops_with_a_lower_bound_of_the_full_runs_value(trac
     e = full.trace.r[:n] - full.trace.signals["theta0"][:n]
     dt = full.trace.t[1] - full.trace.t[0]
     assert stopped.metrics["error.ISE"] == pytest.approx(float(np.sum(e ** 2)) * dt, rel=1e-12)
-    assert stopped.wall_time < full.wall_time
+    assert len(stopped.trace.u) < len(full.trace.u)  # fewer samples simulated (speed: tools/)
 
 
 def test_only_metrics_that_grow_along_a_run_can_be_watched(tracking):
