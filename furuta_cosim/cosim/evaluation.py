@@ -28,6 +28,7 @@ from furuta_cosim.controllers import ControllerFile, fit, load_controller
 from furuta_cosim.cosim.limits import EVERY, Watch, monotone
 from furuta_cosim.cosim.loop import loop_for
 from furuta_cosim.cosim.master import Prepared
+from furuta_cosim.cosim.native import NativeLoop
 from furuta_cosim.cosim.result import RunResult
 from furuta_cosim.cosim.runtime import RuntimeController
 from furuta_cosim.cosim.trace import Trace
@@ -271,17 +272,30 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress, watch=None):
     if watch is not None:
         chunk = min(chunk, max(1, int(round(EVERY / prepared.control_period))))
     stopped = None
-    arguments = (step, controller.control, controller.state,
-                 estimator.correct if estimator else None, estimator.predict if estimator else None,
-                 prepared.rbar.tolist(),
-                 prepared.measurement_noise.tolist() if prepared.noisy else None,
-                 prepared.disturbance.tolist() if prepared.disturbances else None,
-                 prepared.communication_step)
+    noisy = [sources.index(n) for n in prepared.noisy]
+    native = NativeLoop.on(prepared, session, controller, pick, noisy, values)
+    if native is not None:
+        rows, us, commands, xcs = native.rows, native.us, native.commands, native.xcs
+    else:
+        arguments = (step, controller.control, controller.state,
+                     estimator.correct if estimator else None,
+                     estimator.predict if estimator else None, prepared.rbar.tolist(),
+                     prepared.measurement_noise.tolist() if prepared.noisy else None,
+                     prepared.disturbance.tolist() if prepared.disturbances else None,
+                     prepared.communication_step)
+    done = 0  # samples run (the C loop's records are allocated for all of them)
     try:
         for first in range(0, steps, chunk):
             last = min(first + chunk, steps)
-            values = loop(*arguments, first, last, values, limit or 0.0, rows.append, us.append,
-                          commands.append, xcs.append, estimates.append)
+            if native is not None:
+                failed = native.run(first, last)
+                done = last if not failed else native.failed_at + 1
+                if failed:
+                    native.raise_failure(failed, prepared.disturbance)
+            else:
+                values = loop(*arguments, first, last, values, limit or 0.0, rows.append,
+                              us.append, commands.append, xcs.append, estimates.append)
+                done = len(us)
             if progress:
                 progress(last, steps)
             if watch is not None:
@@ -293,12 +307,13 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress, watch=None):
                     break
     except FmuError as error:
         # the plant gave up (a diverging loop): keep the samples up to that point
-        peak = max(map(abs, us)) if us else 0.0
-        failure = (f"stopped at t = {prepared.t[max(len(us) - 1, 0)]:.6g} with the loop diverging "
+        done = len(us) if native is None else done
+        peak = max(map(abs, us[:done])) if done else 0.0
+        failure = (f"stopped at t = {prepared.t[max(done - 1, 0)]:.6g} with the loop diverging "
                    f"(peak |u| {peak:.3g}): {error}")
-    n = len(us)
-    rows = rows[:n]  # a failed step appended its row before the plant gave up
-    table = np.array(rows, dtype=float).reshape(n, len(prepared.signals))
+    n = done
+    # a failed step appended its row before the plant gave up
+    table = np.array(rows[:n], dtype=float).reshape(n, len(prepared.signals))
     cut = _first_not_finite(prepared, table, us)
     if cut is not None:
         # a plant output that is not a number ends the run there, whatever its FMU says: no
@@ -310,7 +325,7 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress, watch=None):
         {name: np.zeros(0) for name in prepared.signals}
     if limit:
         signals[COMMAND] = np.array(commands[:n])
-    for j, column in enumerate(np.array(xcs[:n]).T if xcs else []):
+    for j, column in enumerate(np.array(xcs[:n]).T if n and controller.n_xc else []):
         signals[controller_state(j + 1)] = column
     for j, column in enumerate(np.array(estimates[:n]).T if estimates else []):
         signals[estimate(prepared.states[j])] = column

@@ -33,6 +33,7 @@ class RuntimeController:
 
     def __init__(self, controller: GeneralizedController, F: float = 1.0, delay: int = 0):
         self._made_from = (controller, F, delay)
+        self.controller, self.F, self.delay = controller, float(F), delay  # for the loop in C
         if not controller.discrete:
             raise ValueError("the runtime needs a discrete controller: discretize it first")
         if controller.Dc.shape[0] != 1:

@@ -286,7 +286,7 @@ class PlantSession:
         self._c = self._instantiate(md, interface)
         if self._c == _FFI.NULL:
             raise FmuError(f"{binary.identifier}: {self.INSTANTIATE} failed: {self._drain()}")
-        helper = _step_helper()
+        helper = self._helper = _step_helper()
         self._step_io = getattr(helper, self.STEP_IO) if helper else self._step_three_calls
         self._nx = len(binary.states)
         self._x = _FFI.new("double[]", max(self._nx, 1))
@@ -512,6 +512,35 @@ class PlantSession:
         self._k += 1
         self.time = self._start + self._k * h
         return _FFI.unpack(self._out, self._n_out)
+
+    # -- a loop in C that steps the session itself (furuta_cosim/cosim/native.py) ---------
+    def native(self, h: float) -> dict | None:
+        """What a sample loop in C needs to step this session without Python: the addresses of
+        the step function (step_io) and of its call, of the input and output buffers chosen
+        with :meth:`set_io`, and the clock (``start``, ``k``: time ``start + k*h``) for steps
+        of ``h``. None when the step helper could not be built. The loop hands the clock back
+        with :meth:`advanced`, and a failed step's code to :meth:`step_failed`."""
+        self._usable()
+        if not self._helper:
+            return None
+        if h != self._h:
+            self._start, self._k, self._h = self.time, 0, h
+
+        def address(cdata) -> int:
+            return int(_FFI.cast("uintptr_t", cdata))
+
+        return {"step": address(_FFI.addressof(self._helper, self.STEP_IO)),
+                "call": address(self._call), "in": address(self._in), "out": address(self._out),
+                "start": self._start, "k": self._k}
+
+    def advanced(self, k: int) -> None:
+        """The clock after a loop in C took the session to step ``k`` (see :meth:`native`)."""
+        self._k = k
+        self.time = self._start + self._k * self._h
+
+    def step_failed(self, failed: int, inputs: Sequence[float]) -> None:
+        """Raise the error :meth:`step` raises for what step_io returned (``failed``)."""
+        self._step_failed(failed, inputs)
 
     def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
         which, status = divmod(failed, 8)
