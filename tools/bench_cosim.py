@@ -5,7 +5,9 @@ what tuning pays per candidate, and command start-up.
 
 Measured in one run, best of the repeats:
 - bare:        PlantSession.step alone with the same inputs (the floor the loop stands on);
-- loop:        the master's loop for the LQR (reset, loop, trace) on paper-step;
+- loop:        the master's loop for the LQR (reset, loop, trace) on paper-step: in C
+               (cosim/native.py, what runs by default) and the generated Python loop
+               (FURUTA_COSIM_PYTHON_LOOP=1, what runs with an estimator or unit conversions);
 - parts:       controller calls alone, the noise (noise scenario minus paper-step), recording;
 - end to end:  load the scenario, prepare, evaluate one controller (the FMU already cached);
 - candidate:   evaluate a new controller (its own gain) on an already prepared scenario:
@@ -37,7 +39,7 @@ import numpy as np
 
 from furuta_cosim.controllers import load_controller
 from furuta_cosim.cosim import compile_controller, evaluate, prepare
-from furuta_cosim.cosim import evaluation
+from furuta_cosim.cosim import evaluation, native
 from furuta_cosim.cosim.worker import evaluate_here
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
@@ -126,6 +128,9 @@ def main() -> int:
         t_bare = best(bare_steps(plant, prepared, applied, h), args.repeats)
         t_fmi3 = fmi3_step(prepared, applied, h, args.repeats)  # right after: the same machine state
         t_run = best(lambda: evaluation._run(prepared, plant, compiled, None), args.repeats)
+        os.environ[native.OFF] = "1"
+        t_python_run = best(lambda: evaluation._run(prepared, plant, compiled, None), args.repeats)
+        del os.environ[native.OFF]
         t_noise_run = best(lambda: evaluation._run(noisy, plant, compiled_noisy, None), args.repeats)
         pool = list(candidates(args.candidates * args.repeats))
         t_candidate = best(lambda: [evaluate(prepared, plant, pool.pop()) for _ in range(args.candidates)],
@@ -166,6 +171,7 @@ def main() -> int:
           f"{prepared.substeps} communication step(s) each, best of {args.repeats}")
     print(f"{'part':44s} {'us/step':>8s} {'ms/run':>8s} {'vs bare':>8s}")
     rows = [("bare PlantSession.step", t_bare), ("master loop (reset, loop, trace)", t_run),
+            ("Python loop (FURUTA_COSIM_PYTHON_LOOP=1)", t_python_run),
             ("  of which controller calls", t_controller), ("  of which recording (to arrays)", t_record),
             ("noise: extra per run (noise scenario)", t_noise_run - t_run),
             ("end to end (load, prepare, evaluate, metrics)", t_total),
@@ -176,7 +182,9 @@ def main() -> int:
         rows.append(("bare step of the pythonfmu pendulum", t_foreign))
     for name, seconds in rows:
         print(f"{name:44s} {per(seconds):8.3f} {seconds * 1e3:8.2f} {seconds / t_bare:8.2f}x")
-    print(f"loop overhead over bare stepping: {(t_run - t_bare) / t_bare * 100:.0f} %")
+    # the loop in C steps the plant without Python: it can cost less than bare Python steps
+    print(f"the Python loop's overhead over bare stepping: {(t_python_run - t_bare) / t_bare * 100:.0f} %; "
+          f"loop in C / Python loop: {t_run / t_python_run:.2f}")
     print(f"\n{'command start-up':44s} {'ms':>8s} {'vs python -c pass':>18s}")
     for name, seconds in (("python -c pass", t_pass), ("furuta-cosim --help", t_help),
                           ("furuta-cosim list", t_list)):

@@ -519,7 +519,13 @@ class PlantSession:
         the step function (step_io) and of its call, of the input and output buffers chosen
         with :meth:`set_io`, and the clock (``start``, ``k``: time ``start + k*h``) for steps
         of ``h``. None when the step helper could not be built. The loop hands the clock back
-        with :meth:`advanced`, and a failed step's code to :meth:`step_failed`."""
+        with :meth:`advanced`, and a failed step's code to :meth:`step_failed`.
+
+        Parameters
+        ----------
+        h : float
+            The communication step size the loop will step with.
+        """
         self._usable()
         if not self._helper:
             return None
@@ -534,12 +540,26 @@ class PlantSession:
                 "start": self._start, "k": self._k}
 
     def advanced(self, k: int) -> None:
-        """The clock after a loop in C took the session to step ``k`` (see :meth:`native`)."""
+        """The clock after a loop in C took the session to step ``k`` (see :meth:`native`).
+
+        Parameters
+        ----------
+        k : int
+            Steps of ``h`` since the clock's ``start``.
+        """
         self._k = k
         self.time = self._start + self._k * self._h
 
     def step_failed(self, failed: int, inputs: Sequence[float]) -> None:
-        """Raise the error :meth:`step` raises for what step_io returned (``failed``)."""
+        """Raise the error :meth:`step` raises for what step_io returned.
+
+        Parameters
+        ----------
+        failed : int
+            step_io's nonzero return value.
+        inputs : sequence of float
+            The inputs of the failed step, for the message.
+        """
         self._step_failed(failed, inputs)
 
     def _step_failed(self, failed: int, inputs: Sequence[float]) -> None:
