@@ -123,7 +123,7 @@ def main() -> int:
     compiled_noisy = compile_controller(noisy, "lqr-paper")
 
     with PlantSession.open(prepared.fmu) as plant:
-        reference = evaluation._run(prepared, plant, compiled, None)
+        reference, _ = evaluation._run(prepared, plant, compiled, None)
         applied = reference.u.tolist()
         t_bare = best(bare_steps(plant, prepared, applied, h), args.repeats)
         t_fmi3 = fmi3_step(prepared, applied, h, args.repeats)  # right after: the same machine state
