@@ -18,9 +18,14 @@ from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
 
+def stopping(spec, slack=0.0):
+    """``spec`` with early stopping on (the shipped specs leave it off)."""
+    return dataclasses.replace(spec, constraints=dataclasses.replace(spec.constraints, stop_early=slack))
+
+
 @pytest.fixture(scope="module")
 def effort():
-    return Evaluator(load_spec("effort"))
+    return Evaluator(stopping(load_spec("effort")))
 
 
 def candidate_breaking_sine_follow(evaluator):
@@ -111,7 +116,7 @@ def test_the_pick_checks_beyond_any_fixed_number_of_candidates():
 
 @pytest.mark.slow
 def test_an_early_stopping_run_resumes_to_the_uninterrupted_history(tmp_path):
-    spec = load_spec("effort")
+    spec = stopping(load_spec("effort"))
     spec = dataclasses.replace(spec, optimizer=dataclasses.replace(spec.optimizer, n_initial_points=6))
     document = tune(spec, tmp_path / "whole", n_calls=14, workers=1)
     lines = (tmp_path / "whole" / "history.jsonl").read_text().splitlines(keepends=True)
@@ -142,8 +147,8 @@ def test_an_early_stopping_run_resumes_to_the_uninterrupted_history(tmp_path):
 
 def test_stop_early_is_a_slack_or_false(tmp_path):
     source = (load_spec("effort").path).read_text()
-    assert load_spec("effort").constraints.stop_early == 0.0
-    for text, expected in (("0.25", 0.25), ("false", None), ("0", 0.0)):
+    assert load_spec("effort").constraints.stop_early is None  # off unless a spec asks
+    for text, expected in (("0.25", 0.25), ("false", None), ("0", 0.0), ("null", None)):
         path = tmp_path / f"stop-{text}.yaml"
         path.write_text(source.replace("  requirements: false\n", f"  requirements: false\n  stop_early: {text}\n"))
         assert load_spec(path).constraints.stop_early == expected

@@ -80,7 +80,7 @@ class Constraints:
     no_worse_than: tuple[tuple[str, float], ...] = ()   # times these factors bound the candidate's
     # a candidate's run stops once a constraint on a metric that only grows is broken by this
     # slack (tuning/objective.py, Evaluator.limits); None: every run goes to its end
-    stop_early: float | None = 0.0
+    stop_early: float | None = None  # off; a slack >= 0 turns early stopping on
 
 
 # log and lqr bounds are exponents of 10, at most this large in magnitude
@@ -613,7 +613,7 @@ def _constraints(check: Checker, value) -> Constraints:
             factors = tuple((metric, ratio) for metric, ratio in ratios.items()
                             if checked(check, metric, f"constraints.no_worse_than.metrics.{metric}"))
     stop = section.get("stop_early", Constraints.stop_early)
-    if stop is False:
+    if stop is False or stop is None:
         stop = None
     elif stop is True or not isinstance(stop, (int, float)):
         check.fail("constraints.stop_early", f"expected false or a slack >= 0 (how far past a "
