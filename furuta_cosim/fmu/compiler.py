@@ -95,6 +95,22 @@ def build_helper(source: Path) -> Path | None:
     return target
 
 
+_LOADED: dict = {}  # (ffi, source) -> the opened helper, or None when it cannot be had
+
+
+def load_helper(ffi, source: Path):
+    """The helper ``source`` built (:func:`build_helper`) and opened with the cffi ``ffi``,
+    once per process; None when it cannot be built or loaded (callers then do without it)."""
+    key = (id(ffi), str(source))
+    if key not in _LOADED:
+        path = build_helper(source)
+        try:
+            _LOADED[key] = ffi.dlopen(str(path)) if path else None
+        except OSError:
+            _LOADED[key] = None
+    return _LOADED[key]
+
+
 @contextmanager
 def building(target: Path):
     """An exclusive lock on one cache entry (``<entry>.lock``) while it is built."""

@@ -27,7 +27,7 @@ from fmpy.model_description import ModelDescription
 from furuta_cosim.errors import FmuError
 from furuta_cosim.files import temporary_folder
 from furuta_cosim.fmu.archive import check_archive
-from furuta_cosim.fmu.compiler import build_helper
+from furuta_cosim.fmu.compiler import load_helper
 from furuta_cosim.fmu.variables import settable_start
 from furuta_cosim.signals import start_parameter
 
@@ -103,19 +103,11 @@ void* calloc(size_t, size_t);
 void free(void*);
 """)
 _LIBC = _FFI.dlopen(None)
-_HELPER = None  # the loaded step_io helper; False when it cannot be built
 
 
 def _step_helper():
     """The compiled step_io (one foreign call per step), or None to fall back to three."""
-    global _HELPER
-    if _HELPER is None:
-        path = build_helper(Path(__file__).parent / "_c" / "step_io.c")
-        try:
-            _HELPER = _FFI.dlopen(str(path)) if path else False
-        except OSError:
-            _HELPER = False
-    return _HELPER or None
+    return load_helper(_FFI, Path(__file__).parent / "_c" / "step_io.c")
 
 
 _LOST: list = []  # libraries of instances that failed fatally: kept loaded, never called
