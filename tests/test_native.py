@@ -10,6 +10,7 @@ import pytest
 
 from furuta_cosim.cosim import evaluate, prepare
 from furuta_cosim.cosim import native as native_module
+from furuta_cosim.cosim import evaluation as evaluate_module
 from furuta_cosim.cosim.native import NativeLoop
 from furuta_cosim.design import GeneralizedController
 from furuta_cosim.fmu.exporter import build_fmu
@@ -112,3 +113,19 @@ def test_an_estimator_is_left_to_the_python_loop(session, monkeypatch):
     monkeypatch.setattr(NativeLoop, "run", lambda *a: chunks.append(a))
     result = evaluate(prepared, session, "lqr-paper")
     assert chunks == [] and len(result.trace.t) == prepared.steps
+
+
+def test_arrays_shorter_than_the_run_are_left_to_the_python_loop(session):
+    """The C loop checks no bounds itself: what it would read past an end never reaches it."""
+    prepared = prepare(variant(True, False, False, True, False, False))
+    runtime = evaluate_module.compile_controller(prepared, "lqr-paper").runtime
+    session.set_io([prepared.control_input] + prepared.disturbance_inputs, prepared.outputs)
+    pick, values = list(range(len(prepared.states))), [0.0] * len(prepared.outputs)
+    noisy = [prepared.states.index(n) for n in prepared.noisy]
+    assert NativeLoop.on(prepared, session, runtime, pick, noisy, values) is not None
+    for change in ({"rbar": prepared.rbar[:10]}, {"measurement_noise": prepared.measurement_noise[:10]},
+                   {"disturbance": prepared.disturbance[:10]}):
+        short = dataclasses.replace(prepared, **change)
+        assert NativeLoop.on(short, session, runtime, pick, noisy, values) is None, change
+    session.set_io([prepared.control_input], prepared.outputs)  # a disturbance input missing
+    assert NativeLoop.on(prepared, session, runtime, pick, noisy, values) is None

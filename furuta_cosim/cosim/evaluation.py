@@ -312,7 +312,7 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress, watch=None):
         failure = (f"stopped at t = {prepared.t[max(done - 1, 0)]:.6g} with the loop diverging "
                    f"(peak |u| {peak:.3g}): {error}")
     n = done
-    # a failed step appended its row before the plant gave up
+    # the Python loop appended a failed step's row; the C loop's arrays hold every sample
     table = np.array(rows[:n], dtype=float).reshape(n, len(prepared.signals))
     cut = _first_not_finite(prepared, table, us)
     if cut is not None:

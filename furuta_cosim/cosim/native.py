@@ -20,7 +20,7 @@ from pathlib import Path
 import cffi
 import numpy as np
 
-from furuta_cosim.fmu.compiler import build_helper
+from furuta_cosim.fmu.compiler import load_helper
 
 _FFI = cffi.FFI()
 _FFI.cdef("""
@@ -36,25 +36,26 @@ typedef struct {
 } Loop;
 int run_loop(Loop *, long long, long long);
 """)
-_LIBRARY = None  # the loaded loop; False when it cannot be built
 MAX_SIGNALS = 64  # the C loop's own buffers
 OFF = "FURUTA_COSIM_PYTHON_LOOP"  # set to 1: always the Python loop (for comparisons)
 
 
 def _library():
-    global _LIBRARY
-    if _LIBRARY is None:
-        path = build_helper(Path(__file__).parent / "_c" / "loop.c")
-        try:
-            _LIBRARY = _FFI.dlopen(str(path)) if path else False
-        except OSError:
-            _LIBRARY = False
-    return _LIBRARY or None
+    return load_helper(_FFI, Path(__file__).parent / "_c" / "loop.c")
 
 
-def _doubles(values, shape=None) -> np.ndarray:
-    array = np.ascontiguousarray(values, dtype=np.float64)
-    return array.reshape(shape) if shape is not None else array
+def _doubles(values) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=np.float64)
+
+
+def _fits(prepared, session) -> bool:
+    """Whether every array the C loop indexes has the rows and columns it reads (it checks
+    no bounds itself); where not, the Python loop runs and raises what it raises."""
+    steps, n_d = prepared.steps, len(prepared.disturbances)
+    return (len(prepared.rbar) >= steps
+            and len(session.inputs) == 1 + n_d and len(session.outputs) == len(prepared.outputs)
+            and (not prepared.noisy or prepared.measurement_noise.shape[:2] == (steps, len(prepared.noisy)))
+            and (not n_d or prepared.disturbance.shape[:2] == (steps, n_d)))
 
 
 class NativeLoop:
@@ -103,7 +104,9 @@ class NativeLoop:
         where it does not apply (an estimator, unit conversions, no step helper)."""
         if os.environ.get(OFF) == "1" or prepared.estimator() is not None or prepared.conversions:
             return None
-        if len(pick) > MAX_SIGNALS or runtime.n_xc > MAX_SIGNALS or _library() is None:
+        if len(pick) > MAX_SIGNALS or runtime.n_xc > MAX_SIGNALS or not _fits(prepared, session):
+            return None
+        if _library() is None:
             return None
         native = session.native(prepared.communication_step)
         if native is None:
