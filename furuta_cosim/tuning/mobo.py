@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from furuta_cosim.tuning import pareto
-from furuta_cosim.tuning.optimizers import CANDIDATES, ConstrainedBO, Proposal, _Surrogate, _theta
+from furuta_cosim.tuning.gp import Surrogate
+from furuta_cosim.tuning.optimizers import CANDIDATES, ConstrainedBO, Proposal, _theta
 
 # posterior draws per candidate in the Monte Carlo estimate
 DRAWS = 64
@@ -62,7 +63,7 @@ class HypervolumeBO(ConstrainedBO):
             for j in range(len(self.names)):
                 y = np.minimum([rows[k][j] for k in known], cap[j])
                 theta = _theta(thetas[j], self.d) if j < len(thetas) else None
-                criteria.append(_Surrogate(X[known], y, theta, b.refit, self.restarts, b.fit_seed))
+                criteria.append(Surrogate(X[known], y, theta, b.refit, self.restarts, b.fit_seed))
         draws = rng.standard_normal((DRAWS, len(self.names)))
         believed = [list(row) for row in front]
         centers = X[on_front] if front else X[[int(np.argmin(b.margins))]]

@@ -30,19 +30,20 @@ Every proposal is a function of the history before its batch, the seed and the b
 so that a run's history depends only on the spec, the seed and ``optimizer.batch``: never on
 the number of workers, and a resumed run proposes exactly what the uninterrupted run did. The
 kernel's hyperparameters are fitted at every ``REFIT_EVERY``-th batch, starting from the ones
-the batch before used (recorded in the history: ``surrogate``), for at most ``FIT_ITERATIONS``
+the batch before used (recorded in the history: ``surrogate``), for at most ``gp.FIT_ITERATIONS``
 iterations, and reused in between.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
 from scipy.stats import norm, qmc
+
+from furuta_cosim.tuning.gp import Surrogate
 
 # the kernel hyperparameters are fitted at every this many batches (reused between)
 REFIT_EVERY = 3
@@ -54,10 +55,6 @@ SUCCESSES = 3
 REGIONS = ("trust", "global")
 # a tradeoff's search: auto is ehvi for two criteria, parego for more (tuning/mobo.py, pareto.py)
 FRONTS = ("auto", "ehvi", "parego")
-LENGTH_BOUNDS = (1e-2, 1e2)
-# iterations of a hyperparameter fit at most: it starts from the batch before's values (over
-# the fits of one effort run: 15 iterations median, 86 the longest)
-FIT_ITERATIONS = 30
 
 
 @dataclass
@@ -83,7 +80,7 @@ class _Batch:
     previous: dict              # the hyperparameters the batch before used
     refit: bool                 # whether this batch fits them again
     margins: np.ndarray         # the feasibility margins
-    feasibility: "_Surrogate"   # and their GP
+    feasibility: Surrogate      # and their GP
 
 
 def latin_hypercube(n: int, bounds, seed: int) -> list[list[float]]:
@@ -105,82 +102,6 @@ class RandomSearch:
     def point(self, index: int) -> list[float]:
         rng = np.random.default_rng([self._seed, 1, index])
         return (self._low + rng.random(len(self._low)) * (self._high - self._low)).tolist()
-
-
-def _kernel(d: int, theta=None):
-    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
-
-    kernel = ConstantKernel(1.0, (1e-3, 1e3)) * Matern(np.full(d, 0.5), LENGTH_BOUNDS, nu=2.5) \
-        + WhiteKernel(1e-4, (1e-8, 1e-1))
-    if theta is not None:
-        kernel = kernel.clone_with_theta(np.asarray(theta, dtype=float))
-    return kernel
-
-
-def _fit(objective, theta, bounds):
-    """The hyperparameters' fit: L-BFGS-B on the log marginal likelihood, as scikit-learn's
-    default, but at most FIT_ITERATIONS iterations: it starts from the hyperparameters the
-    batch before used, and a longer climb moves them by little for much time."""
-    from scipy.optimize import minimize
-
-    found = minimize(objective, theta, method="L-BFGS-B", jac=True, bounds=bounds,
-                     options={"maxiter": FIT_ITERATIONS})
-    return found.x, found.fun
-
-
-class _Surrogate:
-    """One GP on the unit cube: fitted (or only conditioned, with given hyperparameters),
-    then conditioned on made-up observations of a batch."""
-
-    def __init__(self, X, y, theta, refit: bool, restarts: int, seed: int):
-        from sklearn.gaussian_process import GaussianProcessRegressor
-
-        self.X, self.y = np.asarray(X, dtype=float), np.asarray(y, dtype=float)
-        self._restarts, self._seed = restarts, seed
-        kernel = _kernel(self.X.shape[1], theta)
-        self.gp = GaussianProcessRegressor(kernel, normalize_y=True, random_state=seed,
-                                           n_restarts_optimizer=restarts if refit else 0,
-                                           optimizer=_fit if refit else None)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # hyperparameters at their bounds: expected here
-            self.gp.fit(self.X, self.y)
-        self.theta = [float(v) for v in self.gp.kernel_.theta]
-        self._predictor = None
-
-    def believe(self, x: np.ndarray) -> None:
-        """Condition on the prediction at ``x`` (the kriging believer), hyperparameters kept."""
-        from sklearn.gaussian_process import GaussianProcessRegressor
-
-        mean = float(self.gp.predict(x[None, :])[0])
-        self.X, self.y = np.vstack([self.X, x]), np.append(self.y, mean)
-        self.gp = GaussianProcessRegressor(self.gp.kernel_, normalize_y=True, optimizer=None)
-        self.gp.fit(self.X, self.y)
-        self._predictor = None
-
-    def predict(self, X):
-        """Mean and standard deviation at the points ``X``: scikit-learn's predict(X,
-        return_std=True), computed without its input checks and kernel objects (the
-        acquisition asks this of thousands of candidates per point)."""
-        from scipy.linalg import solve_triangular
-        from scipy.spatial.distance import cdist
-
-        if self._predictor is None:
-            kernel = self.gp.kernel_
-            scale = np.std(self.y)
-            self._predictor = (float(kernel.k1.k1.constant_value), self.length_scales(),
-                               float(kernel.k2.noise_level), float(np.mean(self.y)),
-                               # scikit-learn's normalize_y: a constant y is not scaled
-                               float(scale) if scale >= 10 * np.finfo(float).eps else 1.0)
-        constant, lengths, noise, mean_y, scale = self._predictor
-        r = np.sqrt(5.0) * cdist(np.asarray(X, dtype=float) / lengths, self.gp.X_train_ / lengths)
-        K = constant * (1.0 + r + r * r / 3.0) * np.exp(-r)  # Matern 5/2
-        mean = mean_y + scale * (K @ self.gp.alpha_)
-        V = solve_triangular(self.gp.L_, K.T, lower=True, check_finite=False)
-        variance = np.maximum(constant + noise - np.einsum("ij,ij->j", V, V), 0.0)
-        return mean, scale * np.sqrt(variance)
-
-    def length_scales(self) -> np.ndarray:
-        return np.asarray(self.gp.kernel_.k1.k2.length_scale, dtype=float).reshape(-1)
 
 
 def _region(records, start: int, batch: int, d: int) -> tuple[float, list]:
@@ -242,7 +163,7 @@ class ConstrainedBO:
         best = _best(records)
         objective = None
         if best is not None and len(valued) >= 2:
-            objective = _Surrogate(X[valued], [records[k]["value"] for k in valued],
+            objective = Surrogate(X[valued], [records[k]["value"] for k in valued],
                                    _theta(b.previous.get("objective"), self.d), b.refit,
                                    self.restarts, b.fit_seed)
         length, _ = _region(records, start, self.batch, self.d)
@@ -282,7 +203,7 @@ class ConstrainedBO:
         # a point the loop's exact checks refused is left out: those constraints are checked
         # for every candidate (screen), not learned
         modelled = [k for k, r in enumerate(records) if not r.get("known")] or list(range(len(records)))
-        feasibility = _Surrogate(X[modelled], margins[modelled], _theta(previous.get("feasibility"), self.d),
+        feasibility = Surrogate(X[modelled], margins[modelled], _theta(previous.get("feasibility"), self.d),
                                  refit, self.restarts, fit_seed)
         return _Batch(rng, fit_seed, X, previous, refit, margins, feasibility)
 
