@@ -30,8 +30,8 @@ Every proposal is a function of the history before its batch, the seed and the b
 so that a run's history depends only on the spec, the seed and ``optimizer.batch``: never on
 the number of workers, and a resumed run proposes exactly what the uninterrupted run did. The
 kernel's hyperparameters are fitted at every ``REFIT_EVERY``-th batch, starting from the ones
-the batch before used (recorded in the history: ``surrogate``), for at most ``gp.FIT_ITERATIONS``
-iterations, and reused in between.
+the batch before used (recorded in the history: ``surrogate``), to convergence (tuning/gp.py),
+and reused in between.
 """
 
 from __future__ import annotations
