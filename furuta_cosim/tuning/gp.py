@@ -40,11 +40,15 @@ def kernel(d: int, theta=None):
     return k
 
 
+def _scale(y: np.ndarray) -> float:
+    """scikit-learn's ``normalize_y`` scale: the deviation of ``y``, 1 for a constant ``y``."""
+    scale = float(np.std(y))
+    return scale if scale >= 10 * np.finfo(float).eps else 1.0
+
+
 def normalized(y: np.ndarray) -> np.ndarray:
-    """``y`` as scikit-learn's ``normalize_y`` trains on it: zero mean, unit deviation (a
-    constant ``y`` is not scaled)."""
-    scale = np.std(y)
-    return (y - np.mean(y)) / (scale if scale >= 10 * np.finfo(float).eps else 1.0)
+    """``y`` as scikit-learn's ``normalize_y`` trains on it: zero mean, unit deviation."""
+    return (y - np.mean(y)) / _scale(y)
 
 
 def negative_log_likelihood(theta, X: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
@@ -133,13 +137,10 @@ class Surrogate:
 
         if self._predictor is None:
             k = self.gp.kernel_
-            scale = np.std(self.y)
             lengths = self.length_scales()
             train = self.gp.X_train_ / lengths
             self._predictor = (float(k.k1.k1.constant_value), lengths, float(k.k2.noise_level),
-                               float(np.mean(self.y)),
-                               # scikit-learn's normalize_y: a constant y is not scaled
-                               float(scale) if scale >= 10 * np.finfo(float).eps else 1.0,
+                               float(np.mean(self.y)), _scale(self.y),
                                train, np.einsum("ij,ij->i", train, train))
         constant, lengths, noise, mean_y, scale, train, train_sq = self._predictor
         Z = np.asarray(X, dtype=float) / lengths
