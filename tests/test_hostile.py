@@ -3,7 +3,6 @@ correct result, never a traceback, a hang, a crash, a silent wrong answer or los
 
 import json
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -225,21 +224,12 @@ except FmuError as error:
 session.close()
 print("closed")
 """
-    runs = [subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
-                           timeout=120) for _ in range(5)]
-    for done in runs:  # everything of ours finished, in every run
+    for _ in range(5):  # unloading the library after the fatal error corrupted the heap at times
+        done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 0, (done.returncode, done.stdout, done.stderr)
         assert "failed fatally" in done.stdout and "open a new session" in done.stdout
-        assert done.stdout.rstrip().endswith("closed"), (done.returncode, done.stdout, done.stderr)
-    # and the process ended cleanly. Once in about 500 runs (CI, 2026-12-03; none in 470 runs by
-    # hand, with MALLOC_CHECK_=3, MALLOC_PERTURB_, PYTHONMALLOC=debug or under load) glibc's
-    # heap check aborted the interpreter's teardown after "closed", with pythonfmu's library,
-    # which embeds Python and freed its objects in its own error handler, still loaded: one such
-    # abort in five is let pass, two are not, nor any other exit code
-    aborted = [done for done in runs if done.returncode != 0]
-    assert len(aborted) <= 1, [(d.returncode, d.stderr) for d in aborted]
-    for done in aborted:
-        assert done.returncode == -signal.SIGABRT, (done.returncode, done.stderr)
-        assert re.search(r"corrupt|free\(\)|malloc", done.stderr), done.stderr  # glibc's words
+        assert done.stdout.rstrip().endswith("closed")
 
 
 def _tune_process(spec: str, run: Path, *extra: str, env=None) -> subprocess.Popen:
