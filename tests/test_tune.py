@@ -342,6 +342,8 @@ def test_baselines_and_initial_controllers_start_the_search(tmp_path):
     assert "initial bo-paper: not in the initial design: Cc: fixed in the search to another matrix" in lines
     assert records[0]["parameters"]["Dc.q2"] == pytest.approx(2.0)     # log10 100
     assert records[0]["parameters"]["Bc[0][2]"] == 0.0
+    # the state it leaves free starts at the slowest of Ac's range (log10 |Ac| from -1 to 2)
+    assert records[0]["x"][0] == -1.0
     assert document["best"]["objective"] <= records[0]["objective"]
     summary = (tmp_path / "run" / "summary.md").read_text()
     assert f"from {document['best']['origin']} (best.yaml, prefilter F = " in summary
