@@ -127,9 +127,8 @@ class Space:
         :class:`~furuta_cosim.controllers.ControllerFile`), and how closely; or None and why
         not. A static controller (no controller state) is the point with Bc = 0 (the state
         then stays 0): Ac's ``log`` entries at the smallest magnitude of their range, the
-        slowest state, where the trust region then starts (over 10 seeds of ``effort`` the
-        median went from 1.0728 with Ac at the middle to 1.0439; docs: Performance), other
-        entries of Ac and Cc at the middle of their ranges; an ``lqr`` block takes the
+        slowest state, where the trust region then starts (why, measured: docs, Performance),
+        other entries of Ac and Cc at the middle of their ranges; an ``lqr`` block takes the
         file's design weights (provenance Q diagonal, the block's R), rebuilt on this
         space's model and time domain."""
         c = cfile.controller
