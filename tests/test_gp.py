@@ -73,6 +73,27 @@ def test_the_fit_finds_scikit_learns_optimum():
                                                                    rel=1e-3)
 
 
+def test_a_fit_leaves_the_optimum_where_every_length_scale_is_at_its_bound():
+    """Warm-started at length scales all at their lower bound (the likelihood's gradient
+    vanishes there, so a climb from there alone stays), a refit also climbs from the
+    kernel's defaults and keeps the likelier fit: here far likelier, with length scales off
+    the bound, and the GP predicts points it was not trained on."""
+    rng, X, y = _data(40, 4, 3)
+    stuck = np.r_[0.0, np.full(4, math.log(gp.LENGTH_BOUNDS[0])), math.log(1e-4)]
+    alone = gp.negative_log_likelihood(stuck, X, gp.normalized(y))[0]
+    fitted = gp.Surrogate(X, y, stuck.tolist(), True, 0, 0)
+    value = gp.negative_log_likelihood(np.array(fitted.theta), X, gp.normalized(y))[0]
+    assert value < alone - 10.0
+    assert np.all(fitted.length_scales() > 10 * gp.LENGTH_BOUNDS[0])
+    # not refitted, the given hyperparameters are kept as they are
+    kept = gp.Surrogate(X, y, stuck.tolist(), False, 0, 0)
+    np.testing.assert_allclose(kept.theta, stuck)
+    C = rng.random((200, 4))
+    truth = np.sin(3 * C.sum(axis=1))
+    error = [float(np.sqrt(np.mean((s.predict(C)[0] - truth) ** 2))) for s in (fitted, kept)]
+    assert error[0] < 0.5 * error[1]
+
+
 @pytest.mark.parametrize("n, d", [(150, 11), (12, 3)])
 def test_the_surrogates_prediction_is_scikit_learns(n, d):
     """The acquisition's own predict gives scikit-learn's mean and standard deviation, fitted
