@@ -79,6 +79,7 @@ def test_a_proposal_depends_only_on_the_history_before_its_batch():
     assert points[:2] == [r["x"] for r in records[14:16]]
     # the hyperparameters of the batch before are where the next refit starts: recorded
     assert records[14]["surrogate"]["feasibility"] and len(records[14]["surrogate"]["feasibility"]) == 6
+    assert len(records[14]["surrogate"]["region"]) == optimizers.LANES == 2  # each region's side
 
 
 def test_the_trust_region_doubles_on_success_and_halves_on_failure():
@@ -92,6 +93,24 @@ def test_the_trust_region_doubles_on_success_and_halves_on_failure():
     assert _region(stalling, 1, 1, 4)[0] == pytest.approx(optimizers.REGION_START / 2)
     length, incumbent = _region(stalling[:3], 1, 1, 4)
     assert length == optimizers.REGION_START and incumbent["index"] == 0
+
+
+def test_the_second_region_follows_its_own_points_from_the_warm_start():
+    """Record k of the batches belongs to region (k - start) % 2: the first is centered on
+    the best of all, the second on the best of its own points and the run's first point
+    (the warm start), and each grows or shrinks on its own points' progress."""
+    def record(index, value, x):
+        return {"index": index, "x": [x] * 4, "feasible": True, "objective": value}
+
+    records = [record(0, 10.0, 0.1), record(1, 9.5, 0.9)]  # the design: warm start, then another
+    for k in range(3):  # region 0's points improve, region 1's do not
+        records += [record(2 + 2 * k, 9.0 - k, 0.8), record(3 + 2 * k, 11.0, 0.2)]
+    length, incumbent = _region(records, 2, 2, 4)
+    assert incumbent["objective"] == 7.0 and length == pytest.approx(2 * optimizers.REGION_START)
+    length, own = _region(records, 2, 2, 4, 1, 2)  # patience max(4, d) / batch = 2 failures
+    assert own["index"] == 0 and length == pytest.approx(optimizers.REGION_START / 2)
+    records += [record(8, 12.0, 0.8), record(9, 9.0, 0.15)]  # region 1 improves: its new center
+    assert _region(records, 2, 2, 4, 1, 2)[1]["index"] == 9
 
 
 def test_the_initial_design_is_a_seeded_latin_hypercube_inside_the_bounds():

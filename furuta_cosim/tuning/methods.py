@@ -119,7 +119,7 @@ def method_for(name: str) -> Method:
 
 class Bayes(Method):
     """Constrained Bayesian optimization (tuning/optimizers.py): GP of the objective and of
-    feasibility, EI times the probability of feasibility in a trust region; for a tradeoff
+    feasibility, EI times the probability of feasibility in trust regions; for a tradeoff
     objective expected hypervolume improvement (two criteria) or ParEGO scalarizations."""
 
     name = "bo"

@@ -19,19 +19,22 @@ proposed (``screen``); a candidate that fails them is never co-simulated.
 
 The acquisition is Expected Improvement over the best feasible value times the probability of
 feasibility; until a feasible point is known, the probability alone. It is maximized over
-candidates drawn in a trust region around the best feasible point (``region: trust``, the
-default: TuRBO's, Eriksson, Pearce, Gardner, Turner and Poloczek, NeurIPS 2019, with one
-region that doubles after 3 improving batches in a row and halves after max(4, d) / batch
-batches without one) or in the whole space (``region: global``). The points of a batch come
-one after another, each told to the surrogates at its predicted value (the kriging believer)
-before the next is computed.
+candidates drawn in trust regions (``region: trust``, the default: TuRBO's, Eriksson, Pearce,
+Gardner, Turner and Poloczek, NeurIPS 2019; a region doubles after 3 improving batches in a
+row and halves after max(4, d) / batch batches without one) or in the whole space (``region:
+global``). There are two regions (``LANES``), taking turns point by point: one around the best
+feasible point of all, one around the best of its own points and the run's first point (the
+warm start), so that a run whose best has moved early to another basin still searches
+around the controller it started from (10 seeds each: docs, Performance). The points of a
+batch come one after another, each told to the surrogates at its predicted value (the kriging
+believer) before the next is computed.
 
 Every proposal is a function of the history before its batch, the seed and the batch's number,
 so that a run's history depends only on the spec, the seed and ``optimizer.batch``: never on
 the number of workers, and a resumed run proposes exactly what the uninterrupted run did. The
-kernel's hyperparameters are fitted at every ``REFIT_EVERY``-th batch, starting from the ones
-the batch before used (recorded in the history: ``surrogate``), to convergence (tuning/gp.py),
-and reused in between.
+kernel's hyperparameters are fitted at every ``REFIT_EVERY``-th batch, to convergence from the
+ones the batch before used (recorded in the history: ``surrogate``) and from the kernel's
+defaults, keeping the likelier (tuning/gp.py), and reused in between.
 """
 
 from __future__ import annotations
@@ -52,6 +55,9 @@ CANDIDATES = 2048
 # TuRBO's trust region, as side lengths of the unit cube
 REGION_START, REGION_MIN, REGION_MAX = 0.8, 0.5**7, 1.6
 SUCCESSES = 3
+# trust regions, taking turns point by point: around the best of all, and one that follows its
+# own points from the warm start (_region)
+LANES = 2
 REGIONS = ("trust", "global")
 # a tradeoff's search: auto is ehvi for two criteria, parego for more (tuning/mobo.py, pareto.py)
 FRONTS = ("auto", "ehvi", "parego")
@@ -104,16 +110,24 @@ class RandomSearch:
         return (self._low + rng.random(len(self._low)) * (self._high - self._low)).tolist()
 
 
-def _region(records, start: int, batch: int, d: int) -> tuple[float, list]:
+def _region(records, start: int, batch: int, d: int, lane: int | None = None,
+            lanes: int = 1) -> tuple[float, list]:
     """The trust region's side length after the batches recorded from ``start`` on (TuRBO's
-    rule, replayed over the history), and the best feasible record so far."""
+    rule, replayed over the history), and its best feasible record so far. Without ``lane``
+    the region of the whole history: its center is the best point of all. With ``lane``, the
+    region that follows only its own points (record ``k`` belongs to lane ``(k - start) %
+    lanes``) from the run's first point (the warm start: the spec's first baseline)."""
     length, successes, failures = REGION_START, 0, 0
     patience = max(1, math.ceil(max(4, d) / batch))
-    best = _best(records[:start])
+    best = _best(records[:start]) if lane is None else _best(records[:1])
     for first in range(start, len(records), batch):
         chunk = records[first:first + batch]
         if len(chunk) < batch and first + len(chunk) == len(records):
             break  # a batch still being evaluated
+        if lane is not None:
+            chunk = [r for r in chunk if (r["index"] - start) % lanes == lane]
+            if not chunk:
+                continue
         new = _best(chunk)
         if new is not None and (best is None or new["objective"] < best["objective"]
                                 - 1e-3 * abs(best["objective"])):
@@ -171,6 +185,10 @@ class ConstrainedBO:
             center = self._unit(best["x"])
         else:  # nothing feasible yet: around the point closest to feasibility
             center = X[int(np.argmin(margins))]
+        regions = [(center, length)]
+        for lane in range(1, LANES):
+            own_length, own = _region(records, start, self.batch, self.d, lane, LANES)
+            regions.append((self._unit(own["x"]), own_length) if own is not None else (center, length))
 
         told = []  # the batch's points so far: each is believed before the next is computed
 
@@ -179,13 +197,15 @@ class ConstrainedBO:
                 feasibility.believe(told[-1])
                 if objective is not None:
                     objective.believe(told[-1])
-            u = self._maximize(objective, feasibility, best, center, length, rng)
+            where, size = regions[(len(records) + len(told) - start) % LANES]
+            u = self._maximize(objective, feasibility, best, where, size, rng)
             told.append(u)
             return self._box(u)
 
+        sizes = [size for _, size in regions]
         surrogate = {"feasibility": feasibility.theta,
                      "objective": objective.theta if objective else None,
-                     "region": length if self.region == "trust" else None}
+                     "region": sizes if self.region == "trust" else None}
         origin = "bo" if best is not None else "bo (no feasible point yet: feasibility only)"
         return Proposal(origin, surrogate, next_point)
 
