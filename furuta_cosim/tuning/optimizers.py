@@ -116,7 +116,8 @@ def _region(records, start: int, batch: int, d: int, lane: int | None = None,
     rule, replayed over the history), and its best feasible record so far. Without ``lane``
     the region of the whole history: its center is the best point of all. With ``lane``, the
     region that follows only its own points (record ``k`` belongs to lane ``(k - start) %
-    lanes``) from the run's first point (the warm start: the spec's first baseline)."""
+    lanes``) from the run's first point (the warm start: the spec's first baseline, or the
+    initial design's first point in a run without one)."""
     length, successes, failures = REGION_START, 0, 0
     patience = max(1, math.ceil(max(4, d) / batch))
     best = _best(records[:start]) if lane is None else _best(records[:1])
