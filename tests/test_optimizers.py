@@ -12,7 +12,7 @@ import pytest
 from furuta_cosim.tuning import optimizers, run
 from furuta_cosim.tuning.executors import Serial
 from furuta_cosim.tuning.optimizers import (ConstrainedBO, RandomSearch, batches, latin_hypercube,
-                                            _region)
+                                            _region, _weights)
 from furuta_cosim.tuning.spec import load_spec
 
 BOUNDS = [(0.0, 1.0)] * 4
@@ -111,6 +111,22 @@ def test_the_second_region_follows_its_own_points_from_the_warm_start():
     assert own["index"] == 0 and length == pytest.approx(optimizers.REGION_START / 2)
     records += [record(8, 12.0, 0.8), record(9, 9.0, 0.15)]  # region 1 improves: its new center
     assert _region(records, 2, 2, 4, 1, 2)[1]["index"] == 9
+
+
+def test_one_long_length_scale_stretches_the_first_region_but_not_the_second():
+    """TuRBO's weights make the first region's side as long as the box along a coordinate
+    the objective hardly depends on; the second region's sides are at most its length, so it
+    stays around the basin it follows."""
+    scales = [8.0, 0.5, 0.5, 0.5]
+    first, second = _weights(scales), _weights(scales, optimizers.OWN_WIDEST)
+    assert np.prod(first) == pytest.approx(1.0) and first[0] == pytest.approx(8.0)
+    assert np.array_equal(second, [optimizers.OWN_WIDEST, 0.5, 0.5, 0.5])
+    bo = ConstrainedBO(BOUNDS, 0, xi=0.01, n_initial_points=4, batch=2)
+    center, length = np.array([0.05, 0.5, 0.5, 0.5]), 0.4
+    for weights, reach in ((first, 1.0), (second, 0.05 + 0.5 * length * optimizers.OWN_WIDEST)):
+        C = bo._candidates(center, length, weights, np.random.default_rng(1), 4096)
+        assert C[:, 0].max() == pytest.approx(reach, abs=0.01) and C[:, 0].max() <= reach
+        assert np.all(np.abs(C[:, 1:] - 0.5) <= 0.5 * length * 0.5 + 1e-12)
 
 
 def test_the_initial_design_is_a_seeded_latin_hypercube_inside_the_bounds():

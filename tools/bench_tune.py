@@ -136,11 +136,11 @@ class Variant:
                 optimizer._seen, optimizer._calls = records, 0
                 return propose(optimizer, records, *args, **kwargs)
 
-            def patched_maximize(optimizer, objective, feasibility, best, center, length, rng):
+            def patched_maximize(optimizer, objective, feasibility, best, center, length, rng, *rest):
                 optimizer._calls += 1
                 if optimizer._calls % 2 == 0 and best is not None:
                     center, length = _second_region(optimizer, name, center, length, objective or feasibility)
-                return maximize(optimizer, objective, feasibility, best, center, length, rng)
+                return maximize(optimizer, objective, feasibility, best, center, length, rng, *rest)
 
             bo.propose, bo._maximize = patched_propose, patched_maximize
         return self

@@ -25,7 +25,10 @@ row and halves after max(4, d) / batch batches without one) or in the whole spac
 global``). There are two regions (``LANES``), taking turns point by point: one around the best
 feasible point of all, one around the best of its own points and the run's first point (the
 warm start), so that a run whose best has moved early to another basin still searches
-around the controller it started from (10 seeds each: docs, Performance). The points of a
+around the controller it started from. A region's sides follow the objective's length scales
+(TuRBO's weights); the second region's are at most its length (``OWN_WIDEST``), so that one
+long length scale does not stretch it across the whole box and away from the basin it
+follows (10 seeds each: docs, Performance). The points of a
 batch come one after another, each told to the surrogates at its predicted value (the kriging
 believer) before the next is computed.
 
@@ -58,6 +61,9 @@ SUCCESSES = 3
 # trust regions, taking turns point by point: around the best of all, and one that follows its
 # own points from the warm start (_region)
 LANES = 2
+# the widest side of the second region, in units of its length (the first: as the length
+# scales make it, up to the box)
+OWN_WIDEST = 1.0
 REGIONS = ("trust", "global")
 # a tradeoff's search: auto is ehvi for two criteria, parego for more (tuning/mobo.py, pareto.py)
 FRONTS = ("auto", "ehvi", "parego")
@@ -186,10 +192,11 @@ class ConstrainedBO:
             center = self._unit(best["x"])
         else:  # nothing feasible yet: around the point closest to feasibility
             center = X[int(np.argmin(margins))]
-        regions = [(center, length)]
+        regions = [(center, length, None)]
         for lane in range(1, LANES):
             own_length, own = _region(records, start, self.batch, self.d, lane, LANES)
-            regions.append((self._unit(own["x"]), own_length) if own is not None else (center, length))
+            where, size = (self._unit(own["x"]), own_length) if own is not None else (center, length)
+            regions.append((where, size, OWN_WIDEST))
 
         told = []  # the batch's points so far: each is believed before the next is computed
 
@@ -198,12 +205,12 @@ class ConstrainedBO:
                 feasibility.believe(told[-1])
                 if objective is not None:
                     objective.believe(told[-1])
-            where, size = regions[(len(records) + len(told) - start) % LANES]
-            u = self._maximize(objective, feasibility, best, where, size, rng)
+            where, size, widest = regions[(len(records) + len(told) - start) % LANES]
+            u = self._maximize(objective, feasibility, best, where, size, rng, widest)
             told.append(u)
             return self._box(u)
 
-        sizes = [size for _, size in regions]
+        sizes = [size for _, size, _ in regions]
         surrogate = {"feasibility": feasibility.theta,
                      "objective": objective.theta if objective else None,
                      "region": sizes if self.region == "trust" else None}
@@ -241,9 +248,9 @@ class ConstrainedBO:
         mask[empty, rng.integers(self.d, size=int(empty.sum()))] = True
         return np.where(mask, box, center)
 
-    def _maximize(self, objective, feasibility, best, center, length, rng) -> np.ndarray:
-        scales = (objective or feasibility).length_scales()
-        weights = scales / np.exp(np.mean(np.log(scales)))
+    def _maximize(self, objective, feasibility, best, center, length, rng,
+                  widest: float | None = None) -> np.ndarray:
+        weights = _weights((objective or feasibility).length_scales(), widest)
         C = self._candidates(center, length, weights, rng, CANDIDATES)
         top, score = self._pick(C, self._acquisition(C, objective, feasibility, best))
         # a second, finer look around the best candidate
@@ -273,6 +280,13 @@ class ConstrainedBO:
         z = improvement / std
         ei = improvement * norm.cdf(z) + std * norm.pdf(z)
         return np.maximum(ei, 0.0) * feasible
+
+
+def _weights(scales, widest: float | None = None) -> np.ndarray:
+    """A region's sides in units of its length: the length scales over their geometric mean
+    (TuRBO's), each at most ``widest`` when given."""
+    weights = np.asarray(scales, dtype=float) / np.exp(np.mean(np.log(scales)))
+    return weights if widest is None else np.minimum(weights, widest)
 
 
 def _number(value, default: float) -> float:
