@@ -161,8 +161,7 @@ def _second_region(optimizer, name, center, length, surrogate):
         return wide
     records = optimizer._seen
     X = np.array([optimizer._unit(r["x"]) for r in records])
-    scales = surrogate.length_scales()
-    half = 0.5 * length * scales / np.exp(np.mean(np.log(scales)))
+    half = 0.5 * length * optimizers._weights(surrogate.length_scales())
     outside = [k for k, r in enumerate(records) if r["feasible"] and np.any(np.abs(X[k] - center) > half)]
     if not outside:
         return wide
