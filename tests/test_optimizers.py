@@ -120,7 +120,7 @@ def test_one_long_length_scale_stretches_the_first_region_but_not_the_second():
     scales = [8.0, 0.5, 0.5, 0.5]
     first, second = _weights(scales), _weights(scales, optimizers.OWN_WIDEST)
     assert np.prod(first) == pytest.approx(1.0) and first[0] == pytest.approx(8.0)
-    assert np.array_equal(second, [optimizers.OWN_WIDEST, 0.5, 0.5, 0.5])
+    assert second == pytest.approx([optimizers.OWN_WIDEST, 0.5, 0.5, 0.5], rel=1e-12)
     bo = ConstrainedBO(BOUNDS, 0, xi=0.01, n_initial_points=4, batch=2)
     center, length = np.array([0.05, 0.5, 0.5, 0.5]), 0.4
     for weights, reach in ((first, 1.0), (second, 0.05 + 0.5 * length * optimizers.OWN_WIDEST)):
