@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 import math
 import shutil
+import weakref
 import zipfile
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
@@ -110,7 +111,11 @@ def _step_helper():
     return load_helper(_FFI, Path(__file__).parent / "_c" / "step_io.c")
 
 
-_LOST: list = []  # libraries of instances that failed fatally: kept loaded, never called
+# What an instance that failed fatally may still point to, kept for the life of the process:
+# its library (never unloaded), and the callbacks, logger and strings it was instantiated
+# with. The FMU is never told the instance is gone (fmi2FreeInstance is itself forbidden after
+# fmi2Fatal), so it may hold on to them; pythonfmu's logger keeps the callbacks' address.
+_LOST: list = []
 _FATAL = 4  # fmi2Fatal (and fmi2Pending, which nothing here asks for): the instance is lost;
 # fmi2Error (3) and fmi2Discard (2) are errors: nothing here retries
 
@@ -172,6 +177,20 @@ def state_names(model_description: ModelDescription) -> list[str]:
     return declared
 
 
+def _within_declared(identifier: str, variable, value: float) -> None:
+    """A value below the variable's declared ``min`` or above its ``max`` is refused: FMI
+    leaves the result of setting one undefined (a negative friction is a motor)."""
+    for bound, outside, word in ((variable.min, lambda b: value < b, "below its minimum"),
+                                 (variable.max, lambda b: value > b, "above its maximum")):
+        try:
+            limit = float(bound) if bound is not None else None
+        except (TypeError, ValueError):
+            continue  # an unreadable bound of a foreign FMU: fmpy's validation reports it
+        if limit is not None and math.isfinite(limit) and outside(limit):
+            raise FmuError(f"{identifier}: {variable.name} = {value:g} is {word} {limit:g} "
+                           "(its range in the model description)")
+
+
 class FmuBinary:
     """An extracted FMU with its shared library loaded; shared by the sessions on it."""
 
@@ -206,6 +225,13 @@ class FmuBinary:
             raise FmuError(f"{self.path}: its binary cannot be loaded ({error})") from None
         self.variables = {v.name: v for v in md.modelVariables}
         self.states = state_names(md)
+        self._sessions: weakref.WeakSet = weakref.WeakSet()
+
+    def lose(self) -> None:
+        """An instance failed fatally: no session on this binary calls the FMU again."""
+        self.lost = True
+        for session in list(self._sessions):
+            session._lose()
 
     def variable(self, name: str):
         try:
@@ -216,9 +242,8 @@ class FmuBinary:
 
     def close(self) -> None:
         if self.lib is not None and self.lost:
-            # an instance that failed fatally is neither freed nor is its library unloaded: the
-            # library may still hold state of it (a pythonfmu plant corrupted the heap at exit
-            # when it was unloaded), so it stays loaded, unused, for the life of the process
+            # an instance on it failed fatally: FMI allows no further call of any instance of
+            # this FMU, so the library stays loaded, unused, for the life of the process
             _LOST.append(self.lib)
             self.lib = None
             shutil.rmtree(self.directory, ignore_errors=True)
@@ -266,7 +291,11 @@ class PlantSession:
         if binary.version != self.VERSION:
             raise FmuError(f"{binary.identifier}: an FMI {binary.version} FMU, not {self.VERSION}: "
                            "open it with PlantSession.for_binary")
+        if binary.lost:
+            raise FmuError(f"{binary.identifier}: an instance of this FMU failed fatally, so no "
+                           "new one may be made from it: open the FMU again")
         self.binary = binary
+        binary._sessions.add(self)
         self._owns_binary = False
         self._lib = binary.lib
         self._messages: list[str] = []
@@ -352,15 +381,22 @@ class PlantSession:
 
     def _check(self, status: int, what: str) -> None:
         if status >= _FATAL:
-            # FMI 2.0: after fmi2Fatal no function of the instance may be called, not even
-            # fmi2Terminate or fmi2FreeInstance; only unloading the library is left
-            self._c = None
-            self.binary.lost = True
-            self._step_io = self._gone
+            # FMI 2.0 and 3.0: after fmi2Fatal no function of any instance of the FMU may be
+            # called, not even fmi2Terminate or fmi2FreeInstance
+            self.binary.lose()
             raise FmuError(f"{self.binary.identifier}: {what} failed fatally: {self._drain()} "
                            "(the instance cannot be used again)")
         if status >= 2:
             raise FmuError(f"{self.binary.identifier}: {what} failed: {self._drain()}")
+
+    def _lose(self) -> None:
+        """Never call this instance again; keep alive what the FMU may still point to."""
+        if self._c is not None:
+            _LOST.append(tuple(getattr(self, name, None) for name in
+                               ("_c", "_callbacks", "_logger", "_name", "_guid", "_token",
+                                "_resources", "_call", "_in", "_out", "_in_vr", "_out_vr")))
+        self._c = None
+        self._step_io = self._gone
 
     def _gone(self, _call, _t: float, _h: float) -> int:
         """A step of an instance that is closed or failed fatally: an error, never a call."""
@@ -369,12 +405,12 @@ class PlantSession:
 
     def _usable(self) -> None:
         if self._c is None:
-            raise FmuError(f"{self.binary.identifier}: the instance is gone (closed, or it failed "
-                           "fatally): open a new session")
+            raise FmuError(f"{self.binary.identifier}: the instance is gone (closed, or an "
+                           "instance of this FMU failed fatally): open a new session")
 
     @property
     def usable(self) -> bool:
-        """False once closed or after the FMU reported fmi2Fatal."""
+        """False once closed or after an instance of the FMU reported fmi2Fatal."""
         return self._c is not None
 
     # -- set-up ----------------------------------------------------------------------------
@@ -437,6 +473,7 @@ class PlantSession:
             elif variable.type == self.REAL:
                 if not math.isfinite(value):
                     raise FmuError(f"{self.binary.identifier}: {name} = {value} is not finite")
+                _within_declared(self.binary.identifier, variable, value)
                 reals.append((variable.valueReference, float(value)))
             else:
                 raise FmuError(f"{self.binary.identifier}: {name} is a {variable.type}; only "
@@ -652,7 +689,7 @@ class PlantSession:
                 getattr(self._lib, self.TERMINATE)(self._c)
             getattr(self._lib, self.FREE)(self._c)
             self._c = None
-        self._call = None
+            self._call = None
         self._step_io = self._gone
         if self._owns_binary:
             self.binary.close()
