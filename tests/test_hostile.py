@@ -232,6 +232,51 @@ print("closed")
         assert done.stdout.rstrip().endswith("closed")
 
 
+def test_after_a_fatal_error_no_instance_of_that_fmu_is_called_again(tmp_path):
+    """FMI: after fmi2Fatal no function of any instance of the FMU may be called, fmi2Terminate
+    and fmi2FreeInstance included. A second instance on the same loaded binary would still
+    step (pythonfmu keeps it working); it is refused instead, and no new one is made on it."""
+    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f",
+                    str(Path(__file__).parent / "foreign" / "raising_fmu.py"), "-d", str(tmp_path)],
+                   check=True, capture_output=True)
+    program = f"""
+from furuta_cosim.errors import FmuError
+from furuta_cosim.fmu.session import FmuBinary, PlantSession
+binary = FmuBinary({str(tmp_path / 'RaisingPlant.fmu')!r})
+first, second = PlantSession.for_binary(binary), PlantSession.for_binary(binary, name="second")
+for session in (first, second):
+    session.reset()
+    session.set_io(["u"], ["x"])
+print("second steps:", second.step([1.0], 0.001))
+try:
+    for _ in range(100):
+        first.step([1.0], 0.001)
+except FmuError as error:
+    print("first:", error)
+for what, call in (("step", lambda: second.step([1.0], 0.001)), ("reset", second.reset),
+                   ("get", lambda: second.get(["x"])),
+                   ("new", lambda: PlantSession.for_binary(binary))):
+    try:
+        call()
+        print(what, "called the FMU")
+    except FmuError as error:
+        print(what, "refused:", error)
+print("usable:", first.usable, second.usable)
+second.close()
+first.close()
+binary.close()
+print("closed")
+"""
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, (done.returncode, done.stdout, done.stderr)
+    out = done.stdout
+    assert "second steps: [0.001]" in out and "failed fatally" in out
+    assert "called the FMU" not in out
+    for what in ("step", "reset", "get", "new"):
+        assert f"{what} refused:" in out
+    assert "usable: False False" in out and out.rstrip().endswith("closed")
+
+
 def _tune_process(spec: str, run: Path, *extra: str, env=None) -> subprocess.Popen:
     return subprocess.Popen(CLI + ["tune", spec, "-o", str(run), *extra],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
