@@ -142,8 +142,9 @@ def test_a_set_with_a_bad_value_names_it(tmp_path):
     ("n_substeps: 0", "parameters.n_substeps: must be a whole number in [1, 1000], got 0"),
     ("n_substeps: 2147483647", "parameters.n_substeps: must be a whole number in [1, 1000]"),
     ("m_p: 0", "parameters.m_p: must be > 0, got 0"),
-    ("C0: -1", "parameters: the FMU refuses these values: C0 = -1"),
-    ("V_max: -1", "parameters: the FMU refuses these values: "),
+    ("C0: -1", "parameters.C0: must be >= 0, got -1"),  # the declared range (min in the XML)
+    ("V_max: -1", "parameters.V_max: must be >= 0, got -1"),
+    ("R_a: 0", "parameters.R_a: must be > 0, got 0"),
 ])
 def test_build_fmu_refuses_a_set_the_fmu_would_reject(tmp_path, capsys, line, expected):
     path = tmp_path / "bad.yaml"

@@ -44,6 +44,9 @@ class Real:
     unit, description : str
     positive : bool
         The FMU rejects values <= 0 (masses, lengths, inertias).
+    minimum : float, optional
+        The smallest physical value (a friction or a stiffness is >= 0): the model
+        description's ``min``, which importers check before they set a value.
     """
 
     name: str
@@ -52,6 +55,7 @@ class Real:
     unit: str = ""
     description: str = ""
     positive: bool = False
+    minimum: float | None = None
 
 
 # RK4 substeps per communication step, at most: beyond it one step costs more than a
@@ -125,6 +129,10 @@ class Model:
                 raise DeclarationError(
                     f"{self.identifier}.{variable.name}: start {variable.start} must be > 0",
                     variable.name, f"must be > 0, got {variable.start:g}")
+            if variable.minimum is not None and variable.start < variable.minimum:
+                raise DeclarationError(
+                    f"{self.identifier}.{variable.name}: start {variable.start} must be >= {variable.minimum:g}",
+                    variable.name, f"must be >= {variable.minimum:g}, got {variable.start:g}")
         self._references[variable.name] = ("real", len(self.reals))
         self.reals.append(variable)
 

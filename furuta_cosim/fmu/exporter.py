@@ -40,6 +40,20 @@ def fmi_headers() -> Path:
     return Path(fmpy.__file__).parent / "c-code"
 
 
+def parameter_ranges(plant: PlantSet) -> dict[str, tuple[float, bool]]:
+    """The physical range of each Real parameter that has one: ``(low, strict)``, the value
+    must be > low (strict) or >= low."""
+    found = {}
+    for v in declaration(plant).reals:
+        if v.causality != "parameter":
+            continue
+        if v.positive:
+            found[v.name] = (0.0, True)
+        elif v.minimum is not None:
+            found[v.name] = (float(v.minimum), False)
+    return found
+
+
 def declaration(plant: PlantSet) -> Model:
     """Run the plant's ``declare()`` with its parameter set or linear spec (only a model of
     ``fmu_src/``, by its plain name: code named anywhere else is never run)."""
@@ -171,6 +185,8 @@ def generate_model_description(model: Model, guid: str, sources: list[str]) -> s
             attributes.update(variability=continuity, initial="calculated")
         if v.unit:
             real["unit"] = v.unit
+        if v.minimum is not None:
+            real["min"] = _number(v.minimum)
         element = ET.SubElement(variables, "ScalarVariable", attributes)
         index[v.name] = k + 1
         ET.SubElement(element, "Real", real)
@@ -251,6 +267,8 @@ def generate_model_description_3(model: Model, guid: str) -> str:
             attributes.update(variability=continuity, initial="calculated")
         if v.unit:
             attributes["unit"] = v.unit
+        if v.minimum is not None:
+            attributes["min"] = _number(v.minimum)
         if v.name in derivative_of:
             attributes["derivative"] = str(model.value_reference(derivative_of[v.name]))
         ET.SubElement(variables, "Float64", attributes)
