@@ -47,6 +47,20 @@ class PlantSet:
     control_period: tuple = (None, None)
 
 
+def content_sha256(plant: PlantSet) -> str:
+    """A digest of what a plant is, whatever file holds it and whatever it extends: its model,
+    its resolved parameters and its limits (two files with the same values give the same)."""
+    import hashlib
+    import json
+
+    if plant.linear is not None:
+        body = {"model": plant.model, "linear": repr(plant.linear)}
+    else:
+        body = {"model": plant.model, "parameters": dict(sorted(plant.parameters.items())),
+                "control_period": list(plant.control_period)}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
 def plant_path(name: str | Path, also: tuple[str, ...] = (), beside: Path | None = None) -> Path:
     """A file path, a plant name in ``scenarios/plants``, or a model's default set; ``also``
     names what the caller accepts besides (listed in the error for an unknown name);
@@ -134,6 +148,9 @@ def _load(path: Path, seen: tuple) -> PlantSet:
             raise error.within(f"{path}: extends") from None
         if base_path.resolve() in seen:
             raise ConfigError([f"{path}: extends: circular ({base_name})"])
+        if len(seen) + 1 >= MAX_EXTENDS:
+            raise ConfigError([f"{path}: extends: a chain of more than {MAX_EXTENDS} plant files "
+                               f"(the first: {seen[0] if seen else path}); a plant extends a few at most"])
         base = _load(base_path, seen + (path.resolve(),))
         if base.model != model:
             check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
@@ -170,6 +187,7 @@ def _limits(check: Checker, value, inherited: tuple) -> tuple:
     return low, high
 
 
+MAX_EXTENDS = 32  # plant files in one extends chain: a fitted plant on a rig's on a shipped one is 3
 _NONLINEAR_KEYS = ("description", "extends", "parameters", "provenance", "limits")
 _LINEAR_KEYS = ("description", "identifier", "time", "period", "substeps", "A", "B", "C", "D",
                 "inputs", "outputs", "time_unit", "states", "x0")
