@@ -150,3 +150,25 @@ def synthetic_log(folder: Path, seed: int = 0) -> Path:
                     "  R_a: {start: 6.0, bounds: [1.0, 30.0]}\n  M_f: {start: 0.05, bounds: [0.005, 0.2]}\n"
                     "  I_a: {start: 2.0e-4, bounds: [1.0e-6, 1.0e-2]}\n  C0: {start: 2.0e-4, bounds: [0.0, 1.0e-2]}\n")
     return spec
+
+
+def fit_folder(folder: Path, parameters: dict, correlation: dict, plant_text: str | None = None,
+               **change) -> Path:
+    """A fit.json of identify with its plant.yaml beside it (the fitted values on
+    qube-servo-3), consistent as identify writes them: fitted_plant names the plant's sha256."""
+    import json
+
+    from furuta_cosim.fmu.plants import content_sha256, load_plant
+
+    values = {n: p["value"] for n, p in parameters.items() if "." not in n and isinstance(p, dict)
+              and isinstance(p.get("value"), float) and math.isfinite(p["value"])}
+    plant = folder / "plant.yaml"
+    plant.write_text(plant_text or ("model: furuta\nextends: qube-servo-3\nparameters: "
+                                    + json.dumps(values) + "\n"))
+    document = {"name": "synthetic", "plant": "qube-servo-3", "parameters": parameters,
+                "correlation": correlation,
+                "fitted_plant": {"file": "plant.yaml", "sha256": content_sha256(load_plant(plant))}}
+    document.update(change)
+    path = folder / "fit.json"
+    path.write_text(json.dumps(document))
+    return path

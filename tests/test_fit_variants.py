@@ -10,19 +10,17 @@ import pytest
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.identify.variants import read_fit, variants_from_fit
 
+from helpers import fit_folder
+
 
 def _fit(folder: Path, rho: float = 0.95, **change) -> Path:
-    document = {"parameters": {
+    parameters = change.pop("parameters", {
         "R_a": {"value": 7.6, "stderr": 0.05, "bounds": [1.0, 30.0]},
         "M_f": {"value": 0.042, "stderr": 0.001, "bounds": [0.005, 0.2]},
-        "free-swing.theta1": {"value": 3.2, "stderr": 0.001, "bounds": [3.1, 3.3]}},
-        "correlation": {"names": ["R_a", "M_f", "free-swing.theta1"],
-                        "matrix": [[1.0, rho, 0.0], [rho, 1.0, 0.0], [0.0, 0.0, 1.0]]}}
-    document.update(change)
-    path = folder / "fit.json"
-    path.write_text(json.dumps(document))
-    (folder / "plant.yaml").write_text("model: furuta\nextends: qube-servo-3\nparameters: {R_a: 7.6, M_f: 0.042}\n")
-    return path
+        "free-swing.theta1": {"value": 3.2, "stderr": 0.001, "bounds": [3.1, 3.3]}})
+    correlation = change.pop("correlation", {"names": ["R_a", "M_f", "free-swing.theta1"],
+                                             "matrix": [[1.0, rho, 0.0], [rho, 1.0, 0.0], [0.0, 0.0, 1.0]]})
+    return fit_folder(folder, parameters, correlation, **change)
 
 
 def test_variants_follow_the_fits_covariance(tmp_path):

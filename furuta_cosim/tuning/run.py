@@ -19,7 +19,6 @@ the summary (tuning/summary.py).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -30,7 +29,7 @@ from furuta_cosim.files import folder as make_folder, output_folder, write_text
 from furuta_cosim.tuning.history import History
 from furuta_cosim.tuning.methods import METHODS, Run, method_for
 from furuta_cosim.tuning.objective import Evaluator
-from furuta_cosim.tuning.rundir import Clock, executor_for, locked, same_run
+from furuta_cosim.tuning.rundir import Clock, executor_for, identity_of, locked, recorded, same_run
 from furuta_cosim.tuning.spec import TuningSpec
 from furuta_cosim.tuning.summary import finish, summary_text
 
@@ -67,7 +66,9 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         A Dask scheduler address, or ``"local"``, to evaluate on a Dask cluster instead.
     resume : bool
         Continue ``run_dir`` after a crash: its history is replayed into the optimizer and the
-        run goes on until it holds exactly ``n_calls`` evaluations.
+        run goes on until it holds exactly ``n_calls`` evaluations (default: the budget the
+        run was started with). Refused when the spec, method, seed, plant file or plant
+        variants (the fit's content, its samples and seed) differ from the run's.
     progress : callable, optional
         ``progress(done, total, best, feasible)``, called after every batch.
     log : callable, optional
@@ -92,6 +93,10 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
     from furuta_cosim.tuning.spec import MAX_CALLS, MAX_SEED
 
     method = method or spec.optimizer.method
+    if n_calls is None and resume:  # the budget the run was started with, not the spec's
+        started = recorded(output_folder(run_dir)).get("n_calls")
+        if isinstance(started, int) and not isinstance(started, bool) and 1 <= started <= MAX_CALLS:
+            n_calls = started
     n_calls = spec.optimizer.n_calls if n_calls is None else n_calls
     seed = spec.optimizer.seed if seed is None else seed
     # every option is checked before anything is made: a refused option leaves no folder
@@ -122,11 +127,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         if log:
             for line in evaluator.vacuous():
                 log(f"warning: {spec.source}: {line}")
-    identity = {"spec": Path(spec.path).read_text() if spec.path else spec.name,
-                "method": method, "seed": seed}
-    identity["spec_sha256"] = hashlib.sha256(identity["spec"].encode()).hexdigest()
-    if spec.plant is not None:
-        identity["plant"] = spec.plant
+    identity = identity_of(spec, method, seed, n_calls)
     if resume:
         same_run(folder, identity)
     executor = executor_for(spec, evaluator, workers, dask)  # a Dask scheduler is reached here
@@ -147,8 +148,9 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         if len(history.records) > n_calls:
             raise ConfigError([f"resume: the run holds {len(history.records)} evaluations, "
                                f"more than the {n_calls} of `n_calls`"])
-        run = Run(spec, folder, evaluator, executor, history, n_calls, seed, Clock(folder / "run.json"),
-                  progress, log)
+        clock = Clock(folder / "run.json")
+        clock.identity["n_calls"] = n_calls  # a resume that extends the run records its new budget
+        run = Run(spec, folder, evaluator, executor, history, n_calls, seed, clock, progress, log)
         # one BLAS thread for the optimizer, serial too: with workers they use the other
         # cores; alone, at a GP's sizes (150 points), a second thread made each iteration
         # twice as slow (tools/bench_tune.py, paper-spectral), and splitting BLAS reductions

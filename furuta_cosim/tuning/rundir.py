@@ -31,6 +31,49 @@ def locked(folder: Path):
     return handle
 
 
+def identity_of(spec, method: str, seed: int, n_calls: int) -> dict:
+    """What a run is, recorded in run.json and checked by a resume: the spec's text (and its
+    sha256), the method, the seed, the budget, and what its plant variants are made of (the
+    plant file's content, the fit's content, the variants themselves), so that a resume can
+    never continue a history on other plants."""
+    import hashlib
+
+    text = Path(spec.path).read_text() if spec.path else spec.name
+    identity = {"spec": text, "method": method, "seed": seed, "n_calls": n_calls,
+                "spec_sha256": hashlib.sha256(text.encode()).hexdigest()}
+    if spec.plant is not None:
+        from furuta_cosim.fmu.plants import content_sha256, load_plant
+
+        identity["plant"] = spec.plant
+        identity["plant_sha256"] = content_sha256(load_plant(spec.plant))
+    identity["variants_sha256"] = _digest([dict(v) for v in spec.variants])
+    if spec.fit is not None:
+        identity["fit"] = {"path": spec.fit.path, "sha256": spec.fit.sha256,
+                           "samples": spec.fit.samples, "seed": spec.fit.seed}
+    return identity
+
+
+def _digest(value) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(value, sort_keys=True).encode()).hexdigest()
+
+
+# what run.json records besides the times, and a resume checks (run.json of older runs may
+# lack the later ones: a key the run did not record is not checked)
+IDENTITY = ("method", "seed", "plant", "spec_sha256", "n_calls", "plant_sha256",
+            "variants_sha256", "fit")
+
+
+def recorded(folder: Path) -> dict:
+    """The identity run.json records ({} when it cannot be read)."""
+    try:
+        started = json.loads((folder / "run.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return started if isinstance(started, dict) else {}
+
+
 def same_run(folder: Path, identity: dict) -> None:
     """A resumed run goes on with the spec, method and seed it started with, or not at all:
     its history would otherwise mix two searches."""
@@ -54,6 +97,27 @@ def same_run(folder: Path, identity: dict) -> None:
             mine, theirs = identity.get(key, "(none)"), started.get(key, "(none)")
             raise ConfigError([f"resume: `{key}` {mine} differs from the run's {theirs} "
                                f"({folder / 'run.json'})"])
+    where = folder / "run.json"
+    fit, theirs = identity.get("fit") or {}, started.get("fit") or {}
+    if ("fit" in started or "variants_sha256" in started) and bool(fit) != bool(theirs):
+        raise ConfigError([f"resume: the run was started {'with' if theirs else 'without'} plant "
+                           f"variants from a fit ({theirs.get('path', 'none')}), this one "
+                           f"{'with' if fit else 'without'} ({fit.get('path', 'none')}) ({where})"])
+    if fit and theirs:
+        for key, flag in (("samples", "from_fit: samples"), ("seed", "from_fit: seed")):
+            if fit.get(key) != theirs.get(key):
+                raise ConfigError([f"{flag} {fit.get(key)} differs from the run's {theirs.get(key)}: "
+                                   f"its plant variants would differ ({where})"])
+        if fit.get("sha256") != theirs.get("sha256"):
+            raise ConfigError([f"resume: the fit {fit.get('path')} is not the one the run drew its "
+                               f"variants from ({theirs.get('path')}): its content differs (sha256 "
+                               f"in {where})"])
+    if "plant_sha256" in started and started["plant_sha256"] != identity.get("plant_sha256"):
+        raise ConfigError([f"resume: the plant file {identity.get('plant')} has changed since the run "
+                           f"started: its parameters differ (sha256 in {where})"])
+    if "variants_sha256" in started and started["variants_sha256"] != identity.get("variants_sha256"):
+        raise ConfigError([f"resume: the spec's plant variants differ from those the run was started "
+                           f"with (sha256 in {where})"])
 
 
 def executor_for(spec, evaluator, workers: int, dask: str | None):
@@ -78,8 +142,7 @@ class Clock(dict):
             saved = {}
         saved = saved if isinstance(saved, dict) else {}
         super().__init__({key: _seconds(saved.get(f"{key}_seconds")) for key in ("optimizer", "evaluation")})
-        self.path, self.identity = path, {k: saved.get(k) for k in ("method", "seed", "plant", "spec_sha256")
-                                    if k in saved}
+        self.path, self.identity = path, {k: saved.get(k) for k in IDENTITY if k in saved}
 
     def save(self) -> None:
         write_text(self.path, json.dumps({**self.identity, "optimizer_seconds": self["optimizer"],

@@ -15,6 +15,7 @@ strictly as scenarios (every problem at once, with file and key; unknown keys re
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -90,6 +91,7 @@ MAX_BOX = 1e6  # a box's bounds: beyond, the search's scaling of the box overflo
 MAX_STATES = 20            # controller states n_xc
 MAX_CALLS = 100_000        # evaluations of one run
 MAX_SEED = 2**32 - 1       # numpy's and scipy's seeds
+MAX_VARIANTS = 65          # plant variants of a spec (as from_fit's 64 samples and the point estimate)
 MAX_PENALTY = 1.0e9        # an infeasible score stays finite (penalty * 2 plus violations)
 MAX_STOP = 1.0e6           # constraints.stop_early: a slack, at most this
 
@@ -126,10 +128,24 @@ class TuningSpec:
     baselines: tuple[str, ...] = ()    # controllers scored alike, for the summary
     plant: str | None = None           # every scenario runs on this plant (a name or a file)
     notes: tuple[str, ...] = ()        # what running on ``plant`` changed, in words
+    fit: "FitSource | None" = None     # where the variants were drawn from, when from a fit
 
     @property
     def source(self) -> str:
         return str(self.path) if self.path else self.name
+
+
+@dataclass(frozen=True)
+class FitSource:
+    """The identify run that plant variants were drawn from: its fit.json (path and sha256 of
+    its content), how many variants and the seed of their design."""
+
+    path: str
+    sha256: str
+    samples: int
+    seed: int
+    held: tuple = ()          # (name, value): not identifiable from the fit's data, not drawn
+    plant_sha256: str = ""    # the fitted plant's values (plant.yaml beside the fit)
 
 
 @dataclass(frozen=True)
@@ -198,21 +214,25 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
                                        ("seed", seed, 0, MAX_SEED)):
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise ConfigError([f"{flag}: expected a whole number from {low} to {high}, got {value}"])
-        variants, fitted = _variants(flags, {"from_fit": str(Path(fit).resolve()), "samples": samples,
-                                             "seed": seed}, Path.cwd())
+        variants, fitted, source = _variants(flags, {"from_fit": str(Path(fit).resolve()),
+                                                     "samples": samples, "seed": seed}, Path.cwd())
         flags.done()
     else:
-        variants, fitted = _variants(check, top.get("variants", [{}]), path.parent)
+        variants, fitted, source = _variants(check, top.get("variants", [{}]), path.parent)
     check.done()
     if plant is None and fitted is not None:
         plant, where = str(fitted), "variants.from_fit"
     if plant is not None:
-        from furuta_cosim.fmu.plants import load_plant
+        from furuta_cosim.fmu.plants import content_sha256, load_plant
 
         try:
             given = load_plant(plant, beside=path.parent if where == "plant" else None)
         except ConfigError as error:
             raise error.within("plant" if where == "plant=" else f"{path}: {where}") from None
+        if source is not None and content_sha256(given) != source.plant_sha256:
+            named = "plant" if where == "plant=" else f"{path}: plant"
+            raise ConfigError([f"{named}: {given.path} is not the plant {source.path} was fitted to "
+                               f"({fitted}): tune on that plant, or draw variants from a fit of this one"])
         low, high = given.control_period
         if period is not None and ((low is not None and period < low * (1 - 1e-12))
                                    or (high is not None and period > high * (1 + 1e-12))):
@@ -227,7 +247,8 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
         model_name = _portable_model(model_name, path.parent)
     except ConfigError as error:
         raise error.within(f"{path}: controller.model" if plant is None else f"{path}: {where}") from None
-    notes = []
+    notes = [f"{name} is not identifiable from the fit's data: held at {value:g} in every variant"
+             for name, value in (source.held if source is not None else ())]
     n_x, n_u = model.n, model.B.shape[1]
     shapes = {"Ac": (n_xc, n_xc), "Bc": (n_xc, n_x), "Cc": (n_u, n_xc), "Dc": (n_u, n_x)}
     parameters = check.mapping(top.get("parameters"), "parameters", optional=tuple(shapes)) or {}
@@ -286,7 +307,7 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
     check.done()
     return TuningSpec(name, description, path, n_xc, time == "discrete", period, model_name, blocks,
                       objective, constraints, optimizer, variants, baselines, plant,
-                      tuple(dict.fromkeys(notes)))
+                      tuple(dict.fromkeys(notes)), source)
 
 
 def _is_shipped(plant) -> bool:
@@ -658,11 +679,11 @@ def _optimizer(check: Checker, value) -> OptimizerSettings | None:
     return OptimizerSettings(**values)
 
 
-def _variants(check: Checker, value, folder: Path) -> tuple[tuple, Path | None]:
+def _variants(check: Checker, value, folder: Path) -> tuple[tuple, Path | None, FitSource | None]:
     """The plant variants, and with ``{from_fit: FILE, samples, seed}`` the fitted plant
-    (``plant.yaml`` beside the fit) they vary."""
+    (``plant.yaml`` beside the fit) they vary and where they came from."""
     if isinstance(value, dict):
-        from furuta_cosim.identify.variants import MAX_SAMPLES, variants_from_fit
+        from furuta_cosim.identify.variants import MAX_SAMPLES, draw, load_fit
 
         section = check.mapping(value, "variants", required=("from_fit",), optional=("samples", "seed"))
         text = check.string(section.get("from_fit"), "variants.from_fit") if section else None
@@ -671,25 +692,36 @@ def _variants(check: Checker, value, folder: Path) -> tuple[tuple, Path | None]:
         seed = check.number(section.get("seed", 0), "variants.seed", integer=True, minimum=0,
                             maximum=MAX_SEED) if section else None
         if text is None or samples is None or seed is None:
-            return ((),), None
+            return ((),), None, None
         fit = Path(text) if Path(text).is_absolute() else folder / text
         plant = fit.parent / "plant.yaml"
         if not fit.is_file() or not plant.is_file():
             check.fail("variants.from_fit", f"{fit}: expected the fit.json of an identify run, with "
                                             "its plant.yaml beside it")
-            return ((),), None
+            return ((),), None, None
         try:
-            found = variants_from_fit(fit, samples, seed)
+            loaded = load_fit(fit)
+            found = draw(loaded, samples, seed)
+            digest = hashlib.sha256(fit.read_bytes()).hexdigest()
         except ConfigError as error:
             check.problems.extend(error.within(f"{check.source}: variants.from_fit").problems)
-            return ((),), None
-        return tuple(tuple(v.items()) for v in found), plant
+            return ((),), None, None
+        except OSError as error:
+            check.fail("variants.from_fit", f"{fit}: cannot be read ({error.__class__.__name__})")
+            return ((),), None, None
+        return (tuple(tuple(v.items()) for v in found), plant,
+                FitSource(str(fit), digest, int(samples), int(seed), tuple(loaded.held.items()),
+                          loaded.plant_sha256))
     if not isinstance(value, list) or not value:
         check.fail("variants", "expected a list of parameter overrides ({} is the plant as it is), "
                                "or {from_fit: FILE, samples: N, seed: S}")
-        return ((),), None
+        return ((),), None, None
+    if len(value) > MAX_VARIANTS:
+        check.fail("variants", f"{len(value)} variants; at most {MAX_VARIANTS} (every candidate "
+                               "runs on each)")
+        return ((),), None, None
     result = []
     for k, item in enumerate(value):
         overrides = check.numbers(item, f"variants[{k}]")
         result.append(tuple(overrides.items()))
-    return tuple(result), None
+    return tuple(result), None, None
