@@ -125,18 +125,12 @@ def connect_dask(address: str, workers: int):
         raise ConfigError([f"dask {address}: no Dask scheduler answers there ({error})"]) from None
 
 
-def session_for(prepared: Prepared):
-    """This process's open session on the prepared scenario's FMU (opened on first use).
-
-    An FMU that is not at its path here (another machine) is built again from the plant
-    file when the scenario has one."""
+def session_on(fmu: str | Path):
+    """This process's open session on ``fmu``, opened on first use and kept; a new one (on a
+    new copy of the FMU) after a fatal error. A pool's worker removes the extracted copies
+    when it ends, whichever job opened them (a tuning's or a fit's)."""
     from furuta_cosim.fmu.session import PlantSession
 
-    fmu = Path(prepared.fmu)
-    if not fmu.is_file() and prepared.plant is not None:
-        from furuta_cosim.fmu.exporter import build_fmu
-
-        fmu = build_fmu(prepared.plant)
     key = str(fmu)
     session = _SESSIONS.get(key)
     if session is not None and not session.usable:  # the FMU failed fatally: a new instance
@@ -145,6 +139,26 @@ def session_for(prepared: Prepared):
     if session is None:
         session = _SESSIONS[key] = PlantSession.open(fmu)
     return session
+
+
+def close_session(fmu: str | Path) -> None:
+    """Close this process's session on ``fmu``, if it has one (its extracted copy removed)."""
+    session = _SESSIONS.pop(str(fmu), None)
+    if session is not None:
+        session.close()
+
+
+def session_for(prepared: Prepared):
+    """This process's open session on the prepared scenario's FMU (opened on first use).
+
+    An FMU that is not at its path here (another machine) is built again from the plant
+    file when the scenario has one."""
+    fmu = Path(prepared.fmu)
+    if not fmu.is_file() and prepared.plant is not None:
+        from furuta_cosim.fmu.exporter import build_fmu
+
+        fmu = build_fmu(prepared.plant)
+    return session_on(fmu)
 
 
 def evaluate_here(prepared: Prepared, controller) -> RunResult:

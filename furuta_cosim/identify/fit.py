@@ -44,7 +44,6 @@ _INTERVALS = ("Newey-West sandwich covariance (Bartlett weights, window from eac
 
 # -- evaluation in workers ----------------------------------------------------------------
 _CONTEXT: dict = {}
-_SESSIONS: dict = {}
 
 
 def _set_context(target: Target, experiments: Sequence[Experiment]) -> None:
@@ -66,16 +65,11 @@ def _experiment(index: int, horizon: float | None) -> Experiment:
 def run_task(task) -> tuple:
     """One simulation: ``(experiment index, horizon, values)`` -> ``(outputs, None)`` or
     ``(None, why it failed)``; the session of this process is opened on first use."""
+    from furuta_cosim.cosim.worker import session_on
+
     index, horizon, values = task
     target = _CONTEXT["target"]
-    session = _SESSIONS.get(target.fmu)
-    if session is not None and not session.usable:
-        session.close()
-        session = None
-    if session is None:
-        from furuta_cosim.fmu.session import PlantSession
-
-        session = _SESSIONS[target.fmu] = PlantSession.open(target.fmu)
+    session = session_on(target.fmu)
     try:
         return simulate(session, target, _experiment(index, horizon), values), None
     except SimulationFailed as error:
@@ -96,6 +90,7 @@ class Runner:
     def __init__(self, target: Target, experiments: Sequence[Experiment], workers: int = 1,
                  dask: str | None = None):
         self.count = 0
+        self._fmu = target.fmu
         self._pool = self._client = self._cluster = None
         if dask is not None:
             self._start_dask(target, experiments, dask, workers)
@@ -137,8 +132,9 @@ class Runner:
             self._client.close()
         if self._cluster is not None:
             self._cluster.close()
-        while _SESSIONS:
-            _SESSIONS.popitem()[1].close()
+        from furuta_cosim.cosim.worker import close_session
+
+        close_session(self._fmu)  # this process's (workers remove theirs when they end)
 
 
 # -- the problem ----------------------------------------------------------------------------
@@ -310,11 +306,12 @@ class FitResult:
     seconds: float
     cost: float
     message: str
+    unseen: tuple = ()             # unknowns the data do not depend on (not identifiable)
 
     def document(self) -> dict:
         """fit.json: every value with its interval, the correlations, the residuals."""
-        sd = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
-        sd_plain = np.sqrt(np.maximum(np.diag(self.plain), 0.0))
+        sd = np.sqrt(np.maximum(np.nan_to_num(np.diag(self.covariance)), 0.0))
+        sd_plain = np.sqrt(np.maximum(np.nan_to_num(np.diag(self.plain)), 0.0))
         scales = np.array([u.scale for u in self.items])
         parameters = {}
         for k, u in enumerate(self.items):
@@ -322,14 +319,21 @@ class FitResult:
             lo, hi = u.bounds
             at_bound = bool(np.isclose(value, lo, rtol=1e-9, atol=1e-12 * u.scale)
                             or np.isclose(value, hi, rtol=1e-9, atol=1e-12 * u.scale))
+            seen = u.name not in self.unseen
             parameters[u.name] = {
-                "value": value, "start": self.start[u.name], "stderr": err,
-                "stderr_plain": float(sd_plain[k] * scales[k]),
-                "interval": [value - Z95 * err, value + Z95 * err], "bounds": [lo, hi],
-                "at_bound": at_bound}
+                "value": value, "start": self.start[u.name],
+                "identifiable": seen,
+                "verdict": "identifiable" if seen else
+                           "not identifiable from these experiments: the data do not depend on it "
+                           "(kept at its start)",
+                "stderr": err if seen else None,
+                "stderr_plain": float(sd_plain[k] * scales[k]) if seen else None,
+                "interval": [value - Z95 * err, value + Z95 * err] if seen else None,
+                "bounds": [lo, hi], "at_bound": at_bound and seen}
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = self.covariance / np.outer(sd, sd)
         corr = np.where(np.isfinite(corr), corr, 0.0)
+        np.fill_diagonal(corr, 1.0)  # an unknown the data do not see: correlated with nothing
         names = [u.name for u in self.items]
         pairs = [[names[i], names[j], float(corr[i, j])] for i in range(len(names))
                  for j in range(i + 1, len(names)) if abs(corr[i, j]) > NOT_SEPARABLE]
@@ -355,27 +359,42 @@ def _sha(path) -> str:
 
 def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | None = None,
         progress: Callable[[str, int, float], None] = lambda stage, n, cost: None,
-        log: Callable[[str], None] = lambda line: None) -> FitResult:
-    """Fit the spec's free parameters on ``target``; see the module docstring."""
+        log: Callable[[str], None] = lambda line: None, resume: dict | None = None,
+        on_stage: Callable[[dict], None] = lambda state: None) -> FitResult:
+    """Fit the spec's free parameters on ``target``; see the module docstring.
+
+    ``on_stage(state)`` is called after every finished stage with what a later call needs to
+    go on from there (``resume=state``): the next stage, the values, the stages' record and
+    the simulations spent. A resumed fit gives the fit an uninterrupted one gives."""
     from scipy.optimize import least_squares
 
     started = time.perf_counter()
-    check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free))
+    check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free),
+                str(spec.path))
+    check_ranges(spec, target)
     plant_values = _plant_values(target, [p.name for p in spec.free])
     items = unknowns(spec, plant_values)
     everything = list(spec.experiments) + list(spec.validation)
     runner = Runner(target, everything, workers, dask)
     x = np.array([u.start / u.scale for u in items])
+    x0 = x.copy()
     lower = np.array([u.bounds[0] / u.scale for u in items])
     upper = np.array([u.bounds[1] / u.scale for u in items])
-    plan, record, message = stages(spec), [], ""
+    plan, record, message, first_stage = stages(spec), [], "", 0
     try:
         start_outputs = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None) \
-            .outputs_at(x, everything)
-        failed = [f"{e.path}: {why}" for e, (_, why) in zip(everything, start_outputs) if why]
+            .outputs_at(x0, everything)
+        if resume is not None:  # its count holds these start runs already
+            first_stage, x = int(resume["stage"]), np.array(resume["x"], dtype=float)
+            record, runner.count = list(resume["record"]), int(resume["simulations"])
+            message = str(resume.get("message", ""))
+        failed = [f"{e.path}: the simulation fails at the start values: {why}"
+                  for e, (_, why) in zip(everything, start_outputs) if why]
         if failed:
-            raise ConfigError([f"at the start values the simulation fails: {line}" for line in failed])
+            raise ConfigError(failed)
         for k, horizon in enumerate(plan):
+            if k < first_stage or message.startswith("stopped"):
+                continue
             label = f"stage {k + 1}/{len(plan)} ({'whole windows' if horizon is None else f'first {horizon:g} s'})"
             problem = Problem(runner, spec.experiments, items, horizon, spec.max_simulations,
                               lambda n, cost, label=label: progress(label, n, cost))
@@ -387,25 +406,41 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
                 cost = float(result.cost)
             except BudgetSpent:
                 message = f"stopped at max_simulations ({spec.max_simulations}) in {label}"
-                x = _best(problem)
-                cost = problem.best_cost
+                best = _best(problem)
+                if best is not None:  # else the budget ran out as the stage began: the last x stands
+                    x, cost = best, problem.best_cost
+                else:
+                    cost = math.nan
             record.append({"horizon": horizon, "cost": cost, "simulations": runner.count - before})
-            log(f"  {label}: cost {cost:.6g} after {runner.count - before} simulations")
+            log(f"  {label}: " + (f"cost {cost:.6g} after {runner.count - before} simulations"
+                                  if runner.count > before else "the budget was spent before it began"))
             if message.startswith("stopped"):
-                break
+                log(f"  {message}: the fit is the best point so far")
+            on_stage({"stage": k + 1, "x": [float(v) for v in x], "record": record,
+                      "simulations": runner.count, "message": message})
         final = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
         J = final.jac(x)
         r = final.fun(x)
+        x, J, r, unseen = _without_effect(final, x, x0, J, r)
         outputs = final.outputs_at(x, everything)
     finally:
         simulations = runner.count
         runner.close()
+    for k in unseen:
+        log(f"  {items[k].name}: the data do not depend on it (its column of the Jacobian is "
+            f"zero): not identifiable from these experiments, kept at {items[k].start:.6g}")
+    seen = [k for k in range(len(items)) if k not in unseen]
     blocks, row = [], 0
     for experiment in spec.experiments:
         for _ in experiment.outputs:
-            blocks.append((J[row:row + experiment.samples], r[row:row + experiment.samples]))
+            blocks.append((J[row:row + experiment.samples][:, seen], r[row:row + experiment.samples]))
             row += experiment.samples
-    covariance, plain, diagnostics = sandwich(blocks)
+    covariance, plain = np.full((len(items),) * 2, np.nan), np.full((len(items),) * 2, np.nan)
+    windows: list = []
+    if seen:
+        part, part_plain, diagnostics = sandwich(blocks)
+        covariance[np.ix_(seen, seen)], plain[np.ix_(seen, seen)] = part, part_plain
+        windows = diagnostics["windows"]
     values = final.values(x)
     from furuta_cosim.identify.replay import compare
 
@@ -420,11 +455,91 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
         (scored if experiment in spec.experiments else held)[experiment.name] = compare(experiment, fitted)
         simulated[experiment.name] = {"start": first, "fit": fitted}
     return FitResult(spec, target, items, {u.name: u.start for u in items}, values, covariance,
-                     plain, diagnostics["windows"], scored, held, before, simulated, record,
-                     simulations, time.perf_counter() - started, float(0.5 * r @ r), message)
+                     plain, windows, scored, held, before, simulated, record,
+                     simulations, time.perf_counter() - started, float(0.5 * r @ r), message,
+                     tuple(items[k].name for k in unseen))
 
 
-def _best(problem: Problem) -> np.ndarray:
+# a column of the weighted Jacobian (in scaled units) this much smaller than the largest is
+# zero: the data do not depend on that unknown
+UNSEEN = 1e-9
+
+
+def _without_effect(problem: Problem, x, x0, J, r):
+    """The unknowns the data do not depend on (a zero column of the Jacobian: an end stop the
+    arm never reaches, a friction of a joint that never moves), set back to their start, where
+    the fit is the same: (x, J, r, their indices). Such a value is whatever the optimizer left,
+    and an interval for it would be of zero width; it is reported as not identifiable."""
+    norms = np.linalg.norm(J, axis=0)
+    largest = float(np.max(norms)) if norms.size else 0.0
+    unseen = [k for k, n in enumerate(norms) if not n > UNSEEN * largest]
+    if not unseen:
+        return x, J, r, []
+    back = x.copy()
+    back[unseen] = x0[unseen]
+    r_back = problem.fun(back)
+    cost, cost_back = float(r @ r), float(r_back @ r_back)
+    if abs(cost_back - cost) <= 1e-9 * max(cost, 1e-300):  # the same fit: report the start
+        return back, problem.jac(back), r_back, unseen
+    return x, J, r, unseen
+
+
+def physical_ranges(target: Target) -> dict[str, tuple[float | None, float | None, bool]]:
+    """Each parameter's physical range on the target: ``(low, high, low is strict)``; from the
+    plant's declaration (a mass > 0, a friction >= 0) or a foreign FMU's min and max."""
+    from furuta_cosim.fmu.session import model_description
+
+    found: dict = {}
+    for v in model_description(target.fmu).modelVariables:
+        bounds = []
+        for bound in (v.min, v.max):
+            try:
+                bounds.append(float(bound) if bound is not None else None)
+            except (TypeError, ValueError):
+                bounds.append(None)
+        if bounds != [None, None]:
+            found[v.name] = (bounds[0], bounds[1], False)
+    if target.plant is not None:
+        from furuta_cosim.fmu.exporter import parameter_ranges
+
+        for name, (low, strict) in parameter_ranges(target.plant).items():
+            found[name] = (low, found.get(name, (None, None, False))[1], strict)
+    return found
+
+
+def outside(value: float, rng: tuple) -> str | None:
+    """Why ``value`` is outside the physical range ``rng``, or None."""
+    low, high, strict = rng
+    if low is not None and (value <= low if strict else value < low):
+        return f"must be {'>' if strict else '>='} {low:g}"
+    if high is not None and value > high:
+        return f"must be <= {high:g}"
+    return None
+
+
+def check_ranges(spec: IdentifySpec, target: Target) -> None:
+    """Bounds of a free parameter beyond its physical range (a resistance below 0) are refused:
+    the fit, and variants drawn from it later, would run a plant that does not exist."""
+    ranges = physical_ranges(target)
+    problems = []
+    for p in spec.free:
+        rng = ranges.get(p.name)
+        if rng is None:
+            continue
+        for side, value in zip(("lo", "hi"), p.bounds):
+            why = outside(value, rng)
+            if why:
+                problems.append(f"{spec.path}: free.{p.name}.bounds: {p.name} {why} (its physical "
+                                f"range), the bounds' {side} is {value:g}")
+                break
+    if problems:
+        raise ConfigError(problems)
+
+
+def _best(problem: Problem) -> np.ndarray | None:
+    """The best point this stage evaluated, None if it evaluated none."""
+    if not problem._cache:
+        return None
     best = min(problem._cache.items(), key=lambda item: float(item[1] @ item[1]))
     return np.frombuffer(best[0], dtype=float).copy()
 
