@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -21,6 +22,7 @@ from typing import Mapping
 import numpy as np
 
 from furuta_cosim.config import Checker, Frozen, excerpt, load_yaml, plain_name
+from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
 
@@ -74,6 +76,7 @@ class Experiment:
     outputs: Mapping[str, Measured]
     start: Mapping[str, float | Free]
     parameters: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
+    units: Mapping[str, str] = field(default_factory=lambda: Frozen({}))  # input/output -> its unit key
 
     @property
     def samples(self) -> int:
@@ -147,10 +150,18 @@ def load_experiment(path: str | Path) -> Experiment:
     outputs = _outputs(check, top["outputs"], table, columns, keep)
     start = _start(check, top.get("start", {}), outputs)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
+    for state in start:
+        if f"{state}_start" in parameters:  # one of the two would be dropped without a word
+            check.fail(f"parameters.{state}_start", f"sets the start of {state}, which start.{state} "
+                                                    "sets too: give it in one place")
     check.done()
+    units = {}
+    for key in ("inputs", "outputs"):
+        section = top.get(key) if isinstance(top.get(key), dict) else {}
+        units.update({str(n): e["unit"] for n, e in section.items() if isinstance(e, dict) and "unit" in e})
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
-                      Frozen(outputs), Frozen(start), parameters)
+                      Frozen(outputs), Frozen(start), parameters, Frozen(units))
 
 
 def _csv_path(check: Checker, value, path: Path) -> Path | None:
@@ -165,8 +176,19 @@ def _csv_path(check: Checker, value, path: Path) -> Path | None:
     return csv
 
 
+# a cell is an ASCII decimal number: digits, a sign, a point, an exponent (no '_', no other
+# script's digits, no nan or inf), and spaces around it
+_CELL = re.compile(rb"[ \t]*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?[ \t]*")
+_NOT_FINITE = {"nan", "inf", "infinity"}
+
+
 def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") -> dict[str, np.ndarray]:
-    """The CSV's numbers by column; one problem (the first bad row) raises ConfigError."""
+    """The CSV's numbers by column; one problem (the first bad row) raises ConfigError.
+
+    Every cell must be an ASCII decimal number. A file of up to ``MAX_CSV_BYTES`` is read
+    whole and parsed by numpy: about 2.5 times the file's size in memory at most (the bytes,
+    the table and the columns); a bad file is then read again line by line to name the first
+    bad line."""
     try:
         size = path.stat().st_size
         if size > MAX_CSV_BYTES:
@@ -176,40 +198,100 @@ def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") 
         raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
     if b"\x00" in raw:
         raise ConfigError([f"{path}: not a text file (it holds NUL bytes)"])
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    if b"\n" not in raw and b"\r" in raw:  # lines ended by a lone carriage return
+        raw = raw.replace(b"\r", b"\n")
+    starts = _line_starts(raw, header)
+    if starts is None:
+        lines = raw.count(b"\n") + (0 if raw.endswith(b"\n") or not raw else 1)
+        raise ConfigError([f"{path}: {lines} line(s), all of them header (header: {header}): no data"])
     try:
-        text = raw.decode("utf-8-sig")
+        raw[:starts].decode("utf-8")
     except UnicodeDecodeError:
         raise ConfigError([f"{path}: not a text file (not UTF-8)"]) from None
-    lines = text.splitlines()
-    if len(lines) <= header:
-        raise ConfigError([f"{path}: {len(lines)} line(s), all of them header (header: {header}): no data"])
+    body = raw[starts:]
+    table = None
+    if body.isascii():
+        import io
+        import warnings
+
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")  # an empty body: numpy warns, we refuse below
+                table = np.loadtxt(io.BytesIO(body), delimiter=delimiter, dtype=float, ndmin=2,
+                                   comments=None, encoding="ascii")
+        except (ValueError, UserWarning):
+            table = None
+        if table is not None and (table.shape[1] != len(columns) or not np.all(np.isfinite(table))
+                                  or not _plain_cells(body, delimiter)):
+            table = None
+    if table is None or not len(table):
+        # raises at a bad file's first bad line; else numpy could not read what is fine (lines
+        # ended by a lone carriage return, say) and this reading is the table
+        table, lines = _read_slowly(path, raw, header, columns, delimiter)
+    else:
+        lines = _row_lines(body, header, len(table))
+    found = {name: np.ascontiguousarray(table[:, k]) for k, name in enumerate(columns)}
+    found[LINE] = lines
+    return found
+
+
+def _line_starts(raw: bytes, header: int) -> int | None:
+    """The offset of the first line after ``header`` lines, None when there is none."""
+    offset = 0
+    for _ in range(header):
+        newline = raw.find(b"\n", offset)
+        if newline < 0:
+            return None
+        offset = newline + 1
+    return offset if raw[offset:].strip() else None
+
+
+def _plain_cells(body: bytes, delimiter: str) -> bool:
+    """Only what a cell of numbers may hold: numpy's parser takes '1_000' and 'nan' too."""
+    allowed = b"0123456789.+-eE \t\r\n" + delimiter.encode("ascii")
+    return not body.translate(None, allowed)
+
+
+def _row_lines(body: bytes, header: int, rows: int) -> np.ndarray:
+    """The line number in the file of each row of the table (blank lines are skipped)."""
+    if not re.search(rb"(^|\n)[ \t\r]*(\n|$)", body.rstrip(b"\r\n")):
+        return np.arange(header + 1, header + 1 + rows)
+    numbers = [header + 1 + k for k, line in enumerate(body.split(b"\n")) if line.strip()]
+    return np.array(numbers[:rows])
+
+
+def _read_slowly(path: Path, raw: bytes, header: int, columns: list[str],
+                 delimiter: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read the file line by line: ConfigError at the first bad line, else (table, lines)."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError([f"{path}: not a text file (not UTF-8)"]) from None
     rows, numbers = [], []
-    for number, line in enumerate(lines[header:], start=header + 1):
+    for number, line in enumerate(text.splitlines()[header:], start=header + 1):
         if not line.strip():
             continue
         fields = line.split(delimiter)
         if len(fields) != len(columns):
             raise ConfigError([f"{path}: line {number}: {len(fields)} field(s), but columns names "
                                f"{len(columns)} ({', '.join(columns)})"])
-        row = []
         for name, cell in zip(columns, fields):
-            try:
-                value = float(cell)
-            except ValueError:
-                raise ConfigError([f"{path}: line {number}, column {name}: not a number "
-                                   f"({excerpt(cell.strip())})"]) from None
-            if not math.isfinite(value):
+            if cell.strip().lower().lstrip("+-") in _NOT_FINITE:
                 raise ConfigError([f"{path}: line {number}, column {name}: {cell.strip()} is not a "
                                    "finite number"])
-            row.append(value)
-        rows.append(row)
+            if not cell.isascii() or not _CELL.fullmatch(cell.encode("ascii")):
+                raise ConfigError([f"{path}: line {number}, column {name}: not a number "
+                                   f"({excerpt(cell.strip())}): cells are ASCII decimal numbers"])
+            if not math.isfinite(float(cell)):
+                raise ConfigError([f"{path}: line {number}, column {name}: {cell.strip()} is not a "
+                                   "finite number (beyond the range of a double)"])
+        rows.append([float(cell) for cell in fields])
         numbers.append(number)
     if not rows:
         raise ConfigError([f"{path}: no data after the {header} header line(s)"])
-    table = np.array(rows, dtype=float)
-    found = {name: table[:, k].copy() for k, name in enumerate(columns)}
-    found[LINE] = np.array(numbers)
-    return found
+    return np.array(rows, dtype=float), np.array(numbers)
 
 
 def _window(check: Checker, value, t: np.ndarray, csv: Path, lines: np.ndarray) -> tuple[int, int]:
@@ -311,8 +393,10 @@ def _outputs(check: Checker, value, table, columns, keep) -> dict[str, Measured]
         if signal is None:
             continue
         values, factor, raw = signal
-        quantum = check.number(raw.get("quantum", 0.0), f"{key}.quantum", minimum=0.0)
-        noise = check.number(raw.get("noise", 0.0), f"{key}.noise", minimum=0.0)
+        quantum = check.number(raw.get("quantum", 0.0), f"{key}.quantum", minimum=0.0,
+                               maximum=MAX_MAGNITUDE / factor)
+        noise = check.number(raw.get("noise", 0.0), f"{key}.noise", minimum=0.0,
+                             maximum=MAX_MAGNITUDE / factor)
         if quantum is None or noise is None:
             continue
         variance = (noise * factor) ** 2 + (quantum * factor) ** 2 / 12.0
@@ -324,7 +408,9 @@ def _outputs(check: Checker, value, table, columns, keep) -> dict[str, Measured]
         if "bias" in raw:
             entry = check.mapping(raw["bias"], f"{key}.bias", required=("free",))
             bounds = check.vector(entry.get("free"), f"{key}.bias.free", 2) if entry and "free" in entry else None
-            if bounds is not None and not bounds[0] < 0.0 < bounds[1]:
+            if bounds is not None and max(abs(b) for b in bounds) * factor > MAX_MAGNITUDE:
+                check.fail(f"{key}.bias.free", f"expected magnitudes of at most {MAX_MAGNITUDE / factor:g}")
+            elif bounds is not None and not bounds[0] < 0.0 < bounds[1]:
                 check.fail(f"{key}.bias.free", f"expected [lo, hi] with lo < 0 < hi, got {bounds}")
             elif bounds is not None:
                 bias = Free((bounds[0] * factor, bounds[1] * factor), 0.0)
@@ -361,6 +447,9 @@ def _start(check: Checker, value, outputs: Mapping[str, Measured]) -> dict:
             lo, hi = bounds
             if not lo < hi:
                 check.fail(f"{key}.free", f"expected [lo, hi] with lo < hi, got [{lo:g}, {hi:g}]")
+                continue
+            if max(abs(lo), abs(hi)) > MAX_MAGNITUDE:
+                check.fail(f"{key}.free", f"expected magnitudes of at most {MAX_MAGNITUDE:g}")
                 continue
             guess = float(outputs[name].values[0]) if name in outputs else 0.5 * (lo + hi)
             found[str(name)] = Free((lo, hi), min(max(guess, lo), hi))

@@ -106,9 +106,11 @@ def open_session(target: Target) -> Iterator:
         session.close()
 
 
-def check_names(target: Target, experiments, free: tuple[str, ...] = ()) -> None:
-    """Every name the experiments (and the fit's ``free`` parameters) use exists in the
-    target's FMU with a role that fits: one ConfigError naming each file and key otherwise."""
+def check_names(target: Target, experiments, free: tuple[str, ...] = (), source: str = "") -> None:
+    """Every name the experiments (and the fit's ``free`` parameters, of the spec ``source``)
+    use exists in the target's FMU with a role that fits: one ConfigError naming each file
+    and key otherwise."""
+    prefix = f"{source}: " if source else ""
     from furuta_cosim.fmu.session import model_description
 
     md = model_description(target.fmu)
@@ -125,12 +127,26 @@ def check_names(target: Target, experiments, free: tuple[str, ...] = ()) -> None
                 inputs = [n for n, v in variables.items() if v.causality == "input"]
                 problems.append(f"{where}: inputs.{name}: {target.label} has no input {variable} "
                                 f"(inputs: {', '.join(inputs) or 'none'})")
+        outputs = [n for n, v in variables.items() if v.causality == "output"]
         for name in experiment.outputs:
             variable = target.output(name)[0]
             if variable not in variables:
-                outputs = [n for n, v in variables.items() if v.causality == "output"]
                 problems.append(f"{where}: outputs.{name}: {target.label} has no variable {variable} "
                                 f"(outputs: {', '.join(outputs)})")
+            elif variables[variable].causality != "output":
+                problems.append(f"{where}: outputs.{name}: {variable} is an {variables[variable].causality} "
+                                f"of {target.label}, not an output it computes (outputs: {', '.join(outputs)})")
+        for name, unit in experiment.units.items():
+            variable = (target.output(name) if name in experiment.outputs else target.input(name))[0]
+            wrong = _unit_problem(md, variables.get(variable), unit)
+            if wrong:
+                key = "outputs" if name in experiment.outputs else "inputs"
+                problems.append(f"{where}: {key}.{name}.unit: {wrong}")
+        for state in experiment.start:
+            parameter = target.start(state, 0.0)[0]
+            if parameter in experiment.parameters:
+                problems.append(f"{where}: parameters.{parameter}: sets the start of {state}, which "
+                                f"start.{state} sets too: give it in one place")
         for name in experiment.start:
             parameter = target.start(name, 0.0)[0]
             if parameter not in variables:
@@ -139,11 +155,53 @@ def check_names(target: Target, experiments, free: tuple[str, ...] = ()) -> None
         for name in experiment.parameters:
             if name not in settable:
                 problems.append(f"{where}: parameters.{name}: not a parameter of {target.label}")
+    started = {target.start(state, 0.0)[0]: (experiment, state) for experiment in experiments
+               for state in experiment.start}
     for name in free:
-        if name not in settable:
-            problems.append(f"free.{name}: not a parameter of {target.label}")
+        variable = variables.get(name)
+        if variable is None or variable.causality != "parameter":
+            kind = ("not a variable" if variable is None else
+                    f"a{'n' if variable.causality[0] in 'aeiou' else ''} {variable.causality}")
+            problems.append(f"{prefix}free.{name}: only a plant parameter can be fitted ({name} is {kind} "
+                            f"of {target.label}; initial states are freed in an experiment's start, "
+                            "sensor zero errors as an output's bias)")
+        elif variable.type not in ("Real", "Float64"):
+            problems.append(f"{prefix}free.{name}: a {variable.type} setting of {target.label}, not a "
+                            "physical value: it cannot be fitted")
+        elif name in started:
+            experiment, state = started[name]
+            problems.append(f"{prefix}free.{name}: {experiment.path} sets it (start.{state}), so the fit "
+                            f"could not move it there: free the start in the experiment instead "
+                            f"(start.{state}: {{free: [lo, hi]}})")
     if problems:
         raise ConfigError(problems)
+
+
+# the SI unit of each unit an experiment may name, for the dimension check
+_SI = {"rad": "rad", "deg": "rad", "rev": "rad", "rad/s": "rad/s", "deg/s": "rad/s", "rpm": "rad/s",
+       "A": "A", "mA": "A", "V": "V", "s": "s", "ms": "s"}
+
+
+def _unit_problem(md, variable, unit: str) -> str | None:
+    """Why a column in ``unit`` cannot be ``variable`` (a current in A on an angle), or None."""
+    from furuta_cosim.fmu.variables import DIMENSIONS, dimension_problem
+
+    si = _SI.get(unit)
+    if variable is None or si is None:
+        return None
+    declared = variable.unit or (variable.declaredType.unit if getattr(variable, "declaredType", None) else None)
+    if declared in DIMENSIONS:
+        if DIMENSIONS[declared] != DIMENSIONS[si]:
+            return (f"{unit} is a unit of {_QUANTITY[si]}, but {variable.name} is in {declared} "
+                    f"({_QUANTITY.get(declared, declared)})")
+        return None
+    problem = dimension_problem(md, variable, si)
+    return f"{unit} is a unit of {_QUANTITY[si]}: {problem}" if problem else None
+
+
+_QUANTITY = {"rad": "an angle", "rad/s": "an angular velocity", "A": "a current", "V": "a voltage",
+             "s": "a time", "rad/s2": "an angular acceleration", "1/s": "a rate", "m": "a length",
+             "Nm": "a torque"}
 
 
 def overrides(target: Target, experiment: Experiment, values: Mapping[str, float]) -> dict[str, float]:
@@ -169,18 +227,21 @@ def simulate(session, target: Target, experiment: Experiment,
     fmu_out = [target.output(n) for n in names]
     fmu_in = [target.input(n) for n in inputs]
     columns = [(experiment.input_at(n) - offset) / scale for n, (_, scale, offset) in zip(inputs, fmu_in)]
-    u = np.column_stack(columns).tolist() if columns else [[]] * experiment.samples
+    u = np.column_stack(columns) if columns else np.zeros((experiment.samples, 0))
+    # the outputs go straight into one array, the inputs are read a block at a time: a log of
+    # 10^6 samples replays in tens of MB, not in lists of Python floats
+    raw = np.empty((experiment.samples, len(names)))
     try:
         session.reset(parameters=overrides(target, experiment, values or {}),
                       start_time=float(experiment.t[0]))
         session.set_io(inputs=[v for v, _, _ in fmu_in], outputs=[v for v, _, _ in fmu_out])
-        rows = [session.get([v for v, _, _ in fmu_out])]
-        h, step = experiment.period, session.step
-        for k in range(experiment.samples - 1):
-            rows.append(step(u[k], h))
+        raw[0] = session.get([v for v, _, _ in fmu_out])
+        h, step, block = experiment.period, session.step, 4096
+        for first in range(0, experiment.samples - 1, block):
+            for k, row in enumerate(u[first:min(first + block, experiment.samples - 1)].tolist(), start=first):
+                raw[k + 1] = step(row, h)
     except FmuError as error:
         raise SimulationFailed(str(error)) from None
-    raw = np.array(rows, dtype=float)
     if not np.all(np.isfinite(raw)):
         k = int(np.argmax(~np.all(np.isfinite(raw), axis=1)))
         raise SimulationFailed(f"{target.label}: an output is not finite at t = {experiment.t[k]:g} s")

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from furuta_cosim import paths
 from furuta_cosim.config import Checker, excerpt, load_yaml, resolve_file
+from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.identify.experiment import Experiment, load_experiment
 
@@ -114,6 +115,9 @@ def _free(check: Checker, value) -> list[Parameter]:
         if bounds is None or ("start" in item and start is None):
             continue
         lo, hi = bounds
+        if max(abs(lo), abs(hi)) > MAX_MAGNITUDE:
+            check.fail(f"{key}.bounds", f"expected magnitudes of at most {MAX_MAGNITUDE:g}, got [{lo:g}, {hi:g}]")
+            continue
         if not lo < hi:
             check.fail(f"{key}.bounds", f"expected [lo, hi] with lo < hi, got [{lo:g}, {hi:g}]")
             continue
