@@ -197,6 +197,11 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                     f" and its output {output!r} takes no start value; name the parameter that "
                     "does under plant.mapping.initial"))
             continue
+        given = {**scenario.overrides, **(overrides or {})}
+        if target in given:  # one of the two would be dropped without a word
+            fail(f"plant.overrides.{target}", f"sets the start of {name}, which plant.initial.{name} "
+                 "sets too: give it in one place")
+            continue
         # a start parameter in units of its own, else in those of the state it starts
         scale, offset = declared_conversion(description, variables[target]) or conversions.get(output, (1.0, 0.0))
         start[target] = (value - offset) / scale

@@ -22,7 +22,7 @@ from furuta_cosim.errors import FmuError
 from furuta_cosim.fmu.archive import check_archive
 from furuta_cosim.fmu.contained import EngineFailed, contained
 from furuta_cosim.fmu.session import FmuBinary, PlantSession, model_description
-from furuta_cosim.fmu.variables import declared_conversion, is_real, unit_problems
+from furuta_cosim.fmu.variables import declared_conversion, dimension_problem, is_real, unit_problems
 
 
 @dataclass(frozen=True)
@@ -122,6 +122,24 @@ def smoke_run(fmu: str | Path, outputs: Sequence[str], step: float, steps: int =
             return [session.step([], step) for _ in range(steps)]
 
 
+def _dimensions(md) -> list[str]:
+    """The units a session would refuse: a variable named as one of this project's plant
+    variables (the view a plant FMU is run in without a mapping) must be in a unit of the same
+    quantity (an angle in rad or deg, never mm), as :mod:`furuta_cosim.cosim.master` judges."""
+    from furuta_cosim.fmu.exporter import build_fmu
+    from furuta_cosim.fmu.plants import load_plant
+
+    ours = {v.name: v.unit for v in model_description(build_fmu(load_plant())).modelVariables}
+    found = []
+    for v in md.modelVariables:
+        if is_real(v) and v.name in ours:
+            problem = dimension_problem(md, v, ours[v.name])
+            if problem:
+                found.append(f"{problem} (the plant's {v.name}: a session refuses it without a "
+                             "mapping that scales it)")
+    return found
+
+
 def _validate(fmu: Path, findings: list[Finding], timeout: float) -> None:
     from fmpy.validation import validate_fmu
 
@@ -142,7 +160,7 @@ def _validate(fmu: Path, findings: list[Finding], timeout: float) -> None:
         findings.append(Finding("model description", False, str(error)))
         return
     variables = md.modelVariables
-    problems = unit_problems(md)
+    problems = unit_problems(md) or _dimensions(md)
     converted = []
     for v in variables if not problems else ():
         conversion = declared_conversion(md, v) if is_real(v) else None
