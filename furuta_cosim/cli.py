@@ -266,10 +266,14 @@ def cmd_tune(args) -> int:
         bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
     workers = _workers(args)
+    # every option that shapes the run, so that the printed line continues this run exactly
     args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out)]
                                 + (["--plant", args.plant] if args.plant else [])
                                 + (["--from-fit", args.from_fit, "--samples", str(args.samples or 8),
                                     "--variants-seed", str(args.variants_seed or 0)] if args.from_fit else [])
+                                + (["--optimizer", args.optimizer] if args.optimizer else [])
+                                + (["--n-calls", str(args.n_calls)] if args.n_calls is not None else [])
+                                + (["--seed", str(args.seed)] if args.seed is not None else [])
                                 + ["--resume"])
     try:
         document = tune(spec, out, method=args.optimizer, n_calls=args.n_calls, seed=args.seed,
@@ -335,16 +339,16 @@ def cmd_regress(args) -> int:
     for case in report.cases:
         if case.failed:
             for line in case.lines():
-                print(f"{'UNFIT     ' if case.status == 'unfit' else 'REGRESSION'} {line}")
+                print(f"{'UNFIT     ' if case.status == 'unfit' else 'REGRESSION'} {as_flags(line)}")
         elif report.update and case.differences:
             for line in case.lines():
-                print(f"changed    {line}")
+                print(f"changed    {as_flags(line)}")
         if case.status == "n/a":
             for line in case.lines():
-                print(f"n/a        {line}")
+                print(f"n/a        {as_flags(line)}")
             continue
         for note in case.notes if case.status != "unfit" else ():
-            print(f"note       {case.scenario} / {case.controller}: {note}")
+            print(f"note       {case.scenario} / {case.controller}: {as_flags(note)}")
     counts = {}
     for case in report.cases:
         counts[case.status] = counts.get(case.status, 0) + 1
@@ -448,8 +452,9 @@ def cmd_identify(args) -> int:
     def progress(stage, n, cost):
         bar(stage, n, budget, f"cost {cost:.6g}, {n / max(time.monotonic() - started, 1e-9):.0f}/s")
 
+    args.resume_with = f"furuta-cosim identify {args.spec} -o {out} --resume"
     try:
-        document = identify(args.spec, out, workers=_workers(args), dask=args.dask,
+        document = identify(args.spec, out, workers=_workers(args), dask=args.dask, resume=args.resume,
                             progress=progress, log=lambda line: (bar.close(), print(line, file=sys.stderr)))
     finally:
         bar.close()
@@ -459,6 +464,10 @@ def cmd_identify(args) -> int:
     width = max(len(n) for n in document["parameters"])
     print(f"{'parameter':{width}s}  {'start':>11s}  {'fitted':>11s}  95 % interval")
     for name, p in document["parameters"].items():
+        if not p.get("identifiable", True):
+            print(f"{name:{width}s}  {p['start']:11.5g}  {p['value']:11.5g}  none: not identifiable "
+                  "from these experiments (the data do not depend on it)")
+            continue
         lo, hi = p["interval"]
         print(f"{name:{width}s}  {p['start']:11.5g}  {p['value']:11.5g}  [{lo:.4g}, {hi:.4g}]"
               + ("  at a bound" if p["at_bound"] else ""))
@@ -474,6 +483,8 @@ def cmd_identify(args) -> int:
                       + ("" if period is None else f", period {100 * period:+.3f} %"))
     print(f"{document['simulations']} simulations in {document['seconds']:.1f} s; "
           f"plant.yaml, fit.json and report.html in {out}")
+    if document["message"].startswith("stopped"):
+        print(f"note: {document['message']}: the fit is the best point found within the budget")
     return 0
 
 
@@ -666,6 +677,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="DIR", help="run directory (default runs/identify/<spec>)")
     p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1: this process)")
     p.add_argument("--dask", metavar="ADDRESS", help="simulate on a Dask scheduler, or 'local'")
+    p.add_argument("--resume", action="store_true",
+                   help="go on with the stopped run in -o from its last finished stage")
     p.add_argument("--json", action="store_true", help="print fit.json")
     p.set_defaults(handler=cmd_identify)
 
@@ -697,7 +710,8 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "dask": "--dask", "delay": "--delay", "fmi_version": "--fmi-version", "junit": "--junit",
          "baselines": "--baselines", "update": "--update", "budget": "--budget",
          "overrides": "--params", "run_dir": "-o", "output": "-o", "controllers": "--controller",
-         "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit"}
+         "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit",
+         "model": "--model"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

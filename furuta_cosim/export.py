@@ -43,7 +43,7 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
     model_name = model or cfile.model
     if not model_name:
         raise ConfigError([f"{cfile.source}: model: missing; name the model the controller "
-                           "runs on (its states name the FMU's inputs), or give --model"])
+                           "runs on (its states name the FMU's inputs), or give `model`"])
     try:
         linear = load_model(model_name, None if model or not cfile.path else cfile.path.parent)
     except ConfigError as error:
@@ -58,7 +58,7 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
     period = period or cfile.period or linear.period
     if not period:
         raise ConfigError([f"{cfile.source}: period: missing; a continuous controller needs the "
-                           "period it is sampled at (--period)"])
+                           "period it is sampled at (`period`)"])
     c = discretize_controller(cfile.controller, period)
     for key in ("Ac", "Bc", "Cc", "Dc"):  # a continuous controller sampled at its period
         matrix = getattr(c, key)

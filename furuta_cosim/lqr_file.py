@@ -51,7 +51,7 @@ def analyze_file(controller: str | Path, model: str | None = None) -> Design:
     cfile = load_controller(controller)
     name = model or cfile.model
     if not name:
-        raise ConfigError([f"{cfile.source}: model: missing; name one with --model"])
+        raise ConfigError([f"{cfile.source}: model: missing; name one with `model`"])
     linear = load_model(name, None if model or not cfile.path else cfile.path.parent)
     cfile = check_fits(cfile, linear)
     c = cfile.controller

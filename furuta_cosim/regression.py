@@ -94,7 +94,7 @@ class Case:
             return [f"{self.scenario} / {self.controller}: not applicable: {note}" for note in self.notes]
         if self.status == "missing":
             return [f"{self.scenario} / {self.controller}: no baseline at {self.baseline} "
-                    "(regress --update makes it)"]
+                    "(regress with `update` makes it)"]
         return [f"{self.scenario} / {self.controller}: {d.describe()}" for d in self.differences]
 
     def to_dict(self) -> dict:
@@ -254,7 +254,7 @@ def check_versions(baseline: dict, path: Path, prepared: Prepared, compiled: Com
     if not problems and baseline["scenario"].get("sha256") != file_hash(scenario.path):
         problems.append(f"{path}: scenario.sha256: made from another version of {scenario.source} "
                         f"({baseline['scenario'].get('sha256')}, now {file_hash(scenario.path)}); "
-                        "check the change, then run 'furuta-cosim regress --update'")
+                        "check the change, then regress with `update`")
     trace = baseline["trace"]
     if not problems and trace is not None:
         # the rows are the run's samples, every ``every``-th: all of them unless it stopped early
@@ -351,7 +351,7 @@ def unbaselined(baseline: dict, result: RunResult) -> list[str]:
     reference = baseline["trace"] or {}
     signals = [name for name in result.trace.columns() if reference and name not in reference
                and name not in essential(result.trace)]
-    return [f"not in the baseline (regress --update adds {'it' if len(names) == 1 else 'them'}): "
+    return [f"not in the baseline (regress with `update` adds {'it' if len(names) == 1 else 'them'}): "
             f"{kind} {', '.join(names)}" for kind, names in (("metric", metrics), ("signal", signals)) if names]
 
 
@@ -548,7 +548,7 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
             missing = lacks(scenario, overrides or {}) if overrides and fmu is None else []
             if missing:
                 shown = ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
-                raise NotApplicable([f"{scenario.source}: its plant has no parameter {shown} (--params)"])
+                raise NotApplicable([f"{scenario.source}: its plant has no parameter {shown} (`overrides`)"])
         except NotApplicable as error:
             unfit += _cases_not_run(scenario, "n/a", error, baselines)
             continue

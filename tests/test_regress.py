@@ -359,7 +359,7 @@ def test_a_signal_the_baseline_lacks_is_a_note_unless_it_is_the_runs_core(tmp_pa
         case = json.loads(out)["cases"][0]
         assert got == code, (name, out, err)
         if code == 0:
-            assert "not in the baseline (regress --update adds it): signal i" in case["notes"]
+            assert "not in the baseline (regress with `update` adds it): signal i" in case["notes"]
         else:
             assert case["differences"][0]["name"] == "u" and "missing from the baseline" in case["differences"][0]["got"]
 

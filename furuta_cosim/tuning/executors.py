@@ -187,7 +187,7 @@ class Dask(_Executor):
                 reason = f"the Dask cluster {self.address} has no worker"
             if idle >= dask_wait():
                 raise RunStopped(f"{reason} (waited {idle:.0f} s, FURUTA_COSIM_DASK_WAIT); what "
-                                 "was evaluated is kept: --resume continues the run")
+                                 "was evaluated is kept: `resume` continues the run")
 
     def close(self) -> None:
         try:
