@@ -114,6 +114,14 @@ def run_cli(capsys, *argv):
     return code, captured.out, captured.err
 
 
+def one_line(capsys, *argv) -> str:
+    """``furuta-cosim ARGV`` refused as bad input: exit 2 and one line, never a traceback."""
+    code, out, err = run_cli(capsys, *argv)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (code, out, err)
+    return lines[0]
+
+
 # -- a synthetic identification problem ------------------------------------------------------
 QUANTUM = 2 * math.pi / 2048
 TRUE = {"R_a": 7.9, "M_f": 0.040, "I_a": 1.2e-4, "C0": 6.0e-4}

@@ -16,17 +16,10 @@ import yaml
 
 from furuta_cosim import paths
 
-from helpers import run_cli
+from helpers import one_line, run_cli
 
 SHIPPED = paths.scenarios()
 CLI = [sys.executable, "-m", "furuta_cosim.cli"]
-
-
-def one_line(capsys, *argv) -> str:
-    code, out, err = run_cli(capsys, *argv)
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (code, out, err)
-    return lines[0]
 
 
 def spec_file(folder: Path, **changes) -> Path:

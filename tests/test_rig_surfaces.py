@@ -20,18 +20,11 @@ import yaml
 from furuta_cosim import paths
 from furuta_cosim.errors import ConfigError
 
-from helpers import fit_folder, run_cli
+from helpers import fit_folder, one_line, run_cli
 
 SHIPPED = paths.scenarios()
 RIG = SHIPPED / "rigs" / "qube-servo-3"
 CLI = [sys.executable, "-m", "furuta_cosim.cli"]
-
-
-def one_line(capsys, *argv) -> str:
-    code, out, err = run_cli(capsys, *argv)
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (code, out, err)
-    return lines[0]
 
 
 def _fit(folder: Path, **change) -> Path:
