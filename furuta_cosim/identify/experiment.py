@@ -186,9 +186,9 @@ def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") 
     """The CSV's numbers by column; one problem (the first bad row) raises ConfigError.
 
     Every cell must be an ASCII decimal number. A file of up to ``MAX_CSV_BYTES`` is read
-    whole and parsed by numpy: about 2.5 times the file's size in memory at most (the bytes,
-    the table and the columns); a bad file is then read again line by line to name the first
-    bad line."""
+    whole and parsed by numpy: about 3.5 times the file's size in memory at most (the bytes,
+    numpy's parse, the table and the columns); a bad file is then read again line by line to
+    name the first bad line."""
     try:
         size = path.stat().st_size
         if size > MAX_CSV_BYTES:
