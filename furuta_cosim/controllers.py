@@ -32,6 +32,7 @@ from furuta_cosim.files import output_file, write_text
 
 KEYS = ("name", "type", "time", "period", "K", "Ac", "Bc", "Cc", "Dc", "model", "prefilter",
         "provenance", "description")
+SWINGUP_KEYS = ("name", "type", "balance", "plant", "swingup", "provenance", "description")
 
 
 @dataclass(frozen=True)
@@ -46,10 +47,15 @@ class ControllerFile:
     description: str = ""
     path: Path | None = None
     provenance: dict = field(default_factory=dict, compare=False)
+    # a swing-up-and-balance file: ``controller`` is its balance controller, these its swing-up
+    swingup: "SwingUp | None" = None
+    balance: Path | None = None          # the balance controller's file
+    plant: str | None = None             # the plant the swing-up's energy is computed on
+    own_name: str | None = None          # a swing-up file's own name (the balance keeps its)
 
     @property
     def name(self) -> str:
-        return self.controller.name
+        return self.own_name or self.controller.name
 
     @property
     def source(self) -> str:
@@ -79,10 +85,12 @@ def load_controller(name: str | Path, beside: Path | None = None) -> ControllerF
     path = controller_path(name, beside)
     data = load_yaml(path)
     check = Checker(path)
+    if isinstance(data, dict) and data.get("type") == "swingup":
+        return _load_swingup(path, data, check)
     top = check.mapping(data, "", required=("type", "time"), optional=KEYS)
     if top is None:
         check.done()
-    kind = check.string(top.get("type"), "type", ("static", "generalized")) if "type" in top else None
+    kind = check.string(top.get("type"), "type", ("static", "generalized", "swingup")) if "type" in top else None
     time = check.string(top.get("time"), "time", ("discrete", "continuous")) if "time" in top else None
     period = None
     if "period" in top:
@@ -136,6 +144,68 @@ def load_controller(name: str | Path, beside: Path | None = None) -> ControllerF
         raise ConfigError([f"{path}: {error}"]) from None
     return ControllerFile(controller, period or 0.0, model, tracked, F, description, path,
                           provenance)
+
+
+def _load_swingup(path: Path, top: dict, check: Checker) -> ControllerFile:
+    """A swing-up-and-balance file (:mod:`furuta_cosim.swingup`): its balance controller file
+    (beside it, or a name), the plant its energy is computed on, its settings."""
+    from furuta_cosim.swingup import SETTINGS, SwingUp, pendulum
+
+    check.mapping(top, "", required=("type", "balance"), optional=SWINGUP_KEYS)
+    balance_name = check.string(top.get("balance"), "balance")
+    settings = {}
+    section = top.get("swingup", {})
+    if check.mapping(section, "swingup", optional=tuple(SETTINGS)) is not None:
+        for key, value in section.items():
+            if key in SETTINGS:
+                _, low, high, _ = SETTINGS[key]
+                number = check.number(value, f"swingup.{key}", minimum=low, maximum=high)
+                if number is not None:
+                    settings[key] = number
+    if settings.get("direction", 1.0) not in (1.0, -1.0):
+        check.fail("swingup.direction", f"expected 1 or -1, got {settings['direction']:g}")
+    if settings.get("fall_angle", SETTINGS["fall_angle"][0]) <= settings.get("catch_angle", SETTINGS["catch_angle"][0]):
+        check.fail("swingup.fall_angle", "must be larger than catch_angle: a pendulum just caught "
+                                         "would count as fallen")
+    name = (check.file_name(top["name"], "name") if "name" in top
+            else check.file_name(path.stem, "name (taken from the file name)"))
+    description = check.text(top["description"], "description") if "description" in top else ""
+    provenance = top.get("provenance", {})
+    if not isinstance(provenance, dict):
+        check.fail("provenance", "expected a mapping")
+    plant_name = check.string(top["plant"], "plant") if "plant" in top else None
+    check.done()
+    try:
+        balance = load_controller(balance_name, path.parent)
+    except ConfigError as error:
+        raise error.within(f"{path}: balance") from None
+    if balance.swingup is not None:
+        raise ConfigError([f"{path}: balance: {balance.source} is a swing-up file itself; name a "
+                           "balance controller"])
+    plant_name = plant_name or _plant_of(balance.model)
+    if plant_name is None:
+        raise ConfigError([f"{path}: plant: missing (the pendulum whose energy the swing-up "
+                           f"computes; {balance.source} names no plant model to take it from)"])
+    from furuta_cosim.fmu.plants import load_plant
+
+    try:
+        plant = load_plant(plant_name, beside=path.parent)
+        inertia, mgl = pendulum(plant.parameters)
+    except ConfigError as error:
+        raise error.within(f"{path}: plant") from None
+    except KeyError as error:
+        raise ConfigError([f"{path}: plant: {plant_name} has no {error.args[0]} (a Furuta plant's "
+                           "pendulum: m_p, l_p, I_p, g)"]) from None
+    return replace(balance, swingup=SwingUp(inertia, mgl, **settings), balance=balance.path,
+                   plant=str(plant.path), own_name=name, description=description or balance.description,
+                   path=path, provenance=provenance)
+
+
+def _plant_of(model: str | None) -> str | None:
+    """The plant file of a model name ``derived:PLANT``, if it is one."""
+    if model and model.startswith("derived:") and len(model) > len("derived:"):
+        return model.partition(":")[2]
+    return None
 
 
 def _check_shapes(check: Checker, Ac, Bc, Cc, Dc) -> None:
@@ -223,7 +293,17 @@ def default_output(model: LinearModel) -> str:
     return TRACKED_OUTPUT if TRACKED_OUTPUT in model.states + model.outputs else model.outputs[0]
 
 
-def controller_document(cfile: ControllerFile) -> dict:
+def controller_document(cfile: ControllerFile, folder: Path | None = None) -> dict:
+    """The file's content; a swing-up file names its balance controller and plant by paths
+    relative to ``folder`` (where it is written)."""
+    if cfile.swingup is not None:
+        from furuta_cosim.fmu.plants import plant_path
+
+        return {"name": cfile.name, "description": cfile.description or None, "type": "swingup",
+                "balance": _shipped_or_relative(cfile.balance, folder, controller_path),
+                "plant": _shipped_or_relative(cfile.plant, folder, plant_path),
+                "swingup": cfile.swingup.settings(),
+                "provenance": {**cfile.provenance, "tool": f"furuta-cosim {__version__}"}}
     c = cfile.controller
     document = {"name": c.name, "description": cfile.description or None,
                 "type": "static" if c.n_xc == 0 else "generalized",
@@ -244,8 +324,8 @@ def controller_document(cfile: ControllerFile) -> dict:
 
 def save_controller(cfile: ControllerFile, path: str | Path) -> Path:
     """Write a controller file that :func:`load_controller` reads back unchanged."""
-    text = yaml.safe_dump(controller_document(cfile), sort_keys=False, default_flow_style=None,
-                          width=100)
+    text = yaml.safe_dump(controller_document(cfile, Path(path).parent), sort_keys=False,
+                          default_flow_style=None, width=100)
     return write_text(output_file(path),
                       f"# Written by furuta-cosim; see provenance for how it was designed.\n{text}")
 
@@ -264,6 +344,19 @@ def recorded_model(model_name: str, folder: Path | None = None) -> str:
     if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
         return _relative(path, folder)
     return str(model_name)
+
+
+def _shipped_or_relative(path, folder: Path | None, shipped) -> str | None:
+    """A shipped file by its name (``shipped(name)`` finds it), any other by its path relative
+    to ``folder``."""
+    if not path:
+        return None
+    try:
+        if shipped(Path(path).stem).resolve() == Path(path).resolve():
+            return Path(path).stem
+    except ConfigError:
+        pass
+    return _relative(path, folder)
 
 
 def _relative(path: str | Path, folder: Path | None) -> str:

@@ -13,7 +13,10 @@ Keys are ``<signal>.<metric>``:
 - ``u.peak_abs``, ``u.rms``, ``u.energy`` (the integral of u^2);
 - for every recorded output ``<name>.max_abs``, and for an output that starts away from 0
   while the reference is not about it, ``<name>.SettlingTime``: the time after which it stays
-  within 2 % of its initial offset around 0 (regulation).
+  within 2 % of its initial offset around 0 (regulation); for an angle that starts more than
+  pi/2 from 0 (a pendulum hanging), ``<name>.WrappedSettlingTime``: the same of the angle
+  wrapped to (-pi, pi], the time after which it stays within 2 % of its start from upright,
+  whichever way round it swung up.
 """
 
 from __future__ import annotations
@@ -31,26 +34,31 @@ STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Oversho
 INPUT_METRICS = ("peak_abs", "rms", "energy")         # of the applied input u
 ERROR_METRICS = ("IAE", "ISE", "ITAE", "RMS")          # of e = r - y
 OUTPUT_METRICS = ("max_abs", "SettlingTime")           # of any other plant output (regulation)
+# of an angle (rad) that starts more than pi/2 from 0: a pendulum swung up from hanging, upright
+# whichever way round it went
+WRAPPED_METRICS = ("WrappedSettlingTime",)
 SIGNAL_METRICS = ("max_abs",)                          # of any other recorded signal
 # every metric name that some signal can have: what a scenario file may name before the plant
 # is known; :func:`catalogue` says which exist for one prepared scenario
-ALL_NAMES = tuple(dict.fromkeys(STEP_NAMES + INPUT_METRICS + ERROR_METRICS + OUTPUT_METRICS))
+ALL_NAMES = tuple(dict.fromkeys(STEP_NAMES + INPUT_METRICS + ERROR_METRICS + OUTPUT_METRICS + WRAPPED_METRICS))
 
 
 def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
-              settles: bool = True, steps: int = 0) -> dict[str, tuple[str, ...]]:
+              settles: bool = True, steps: int = 0, wrapped: Iterable[str] = ()) -> dict[str, tuple[str, ...]]:
     """The metrics a run records, by signal: the one place that says which exist.
 
     ``outputs`` are the plant outputs (the tracked one among them), ``others`` the further
     recorded signals (disturbance inputs, ``u_command``, estimates); ``steps``: how many steps
-    of a piecewise-constant reference get metrics of their own (:func:`step_segments`). Controller states
+    of a piecewise-constant reference get metrics of their own (:func:`step_segments`);
+    ``wrapped``: the angles that start more than pi/2 from 0 (:data:`WRAPPED_METRICS`). Controller states
     ``xc<k>`` have ``max_abs`` too; they depend on the controller, so :func:`problem` accepts
     them by pattern.
     """
     result = {"u": INPUT_METRICS, "error": ERROR_METRICS}
+    wrapped = set(wrapped)
     for name in outputs:
         result[name] = (STEP_NAMES + ("max_abs",) if settles else ("max_abs",)) if name == tracked \
-            else OUTPUT_METRICS
+            else OUTPUT_METRICS + (WRAPPED_METRICS if name in wrapped else ())
     for name in others:
         result.setdefault(name, SIGNAL_METRICS)
     if settles:
@@ -225,10 +233,17 @@ def _compute(trace, settles: bool, error_window) -> dict[str, float]:
             settling = regulation_settling(t, values)
             if settling is not None:
                 metrics[f"{name}.SettlingTime"] = settling
+            if trace.units.get(name) == "rad" and abs(_wrapped(values[:1])[0]) > math.pi / 2:
+                metrics[f"{name}.WrappedSettlingTime"] = regulation_settling(t, _wrapped(values))
     if trace.failure:
         # a run that stopped early never settled, whatever its last samples show
         metrics.update({k: math.inf for k in metrics if k.endswith(("SettlingTime", "RiseTime"))})
     return metrics
+
+
+def _wrapped(values: np.ndarray) -> np.ndarray:
+    """Angles in (-pi, pi]."""
+    return np.pi - np.mod(np.pi - values, 2.0 * np.pi)
 
 
 def _regulated(trace) -> set[str]:

@@ -323,7 +323,11 @@ def _plant(check: Checker, value, folder: Path):
         if text:
             fmu = Path(text) if Path(text).is_absolute() else folder / text
     overrides = check.numbers(section.get("overrides", {}), "plant.overrides")
-    initial = check.numbers(section.get("initial", {}), "plant.initial")
+    given = section.get("initial", {})
+    if isinstance(given, dict):  # a pendulum hanging down starts at pi: `theta1: pi` says so
+        given = {k: ({"pi": math.pi, "-pi": -math.pi}.get(v.strip(), v) if isinstance(v, str) else v)
+                 for k, v in given.items()}
+    initial = check.numbers(given, "plant.initial")
     control_input = None
     if "control_input" in section:
         control_input = check.string(section["control_input"], "plant.control_input")

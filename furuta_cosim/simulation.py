@@ -153,7 +153,10 @@ def concerns(metrics: dict) -> list[str]:
         signal, _, name = key.rpartition(".")
         if ".step" in signal:
             continue  # one step of several: the table shows each
-        if name == "SettlingTime" and (value is None or not math.isfinite(value)):
+        wrapped = metrics.get(f"{signal}.WrappedSettlingTime")
+        if name == "SettlingTime" and isinstance(wrapped, float) and math.isfinite(wrapped):
+            continue  # swung up the other way round (to 2 pi): upright, as the wrapped angle says
+        if name in ("SettlingTime", "WrappedSettlingTime") and (value is None or not math.isfinite(value)):
             peak, u = metrics.get(f"{signal}.max_abs"), metrics.get("u.peak_abs")
             found.append(f"{signal} does not settle by the end of the run (peak |{signal}| {peak:.4g}"
                          + (f", peak |u| {u:.4g}" if u is not None else "") + ")"

@@ -46,7 +46,7 @@ class Compiled:
     """A controller checked against a prepared scenario and generated for its hot loop."""
 
     cfile: ControllerFile
-    runtime: RuntimeController
+    runtime: RuntimeController  # or a SwingUpRuntime around one
 
     @property
     def name(self) -> str:
@@ -108,8 +108,12 @@ def compile_controller(prepared: Prepared, controller, *, key: str | None = None
     except ConfigError as error:
         raise error.within(where) from None
     c = discretize_controller(cfile.controller, prepared.control_period)
-    return Compiled(cfile, RuntimeController(c, cfile.F if cfile.F is not None else 1.0,
-                                             delay=prepared.scenario.delay))
+    runtime = RuntimeController(c, cfile.F if cfile.F is not None else 1.0, delay=prepared.scenario.delay)
+    if cfile.swingup is not None:
+        from furuta_cosim.swingup import SwingUpRuntime
+
+        runtime = SwingUpRuntime(runtime, cfile.swingup)
+    return Compiled(cfile, runtime)
 
 
 def scenario_controllers(prepared: Prepared, names: Sequence | None = None) -> list[Compiled]:

@@ -240,7 +240,11 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     # step metrics need a step to measure: a reference that changes, or one away from the start
     stepped = scenario.reference.settles and len(rbar) > 2 and (
         bool(np.any(np.diff(rbar) != 0)) or abs(rbar[0] - scenario.initial.get(tracked, 0.0)) > 1e-12)
-    known = catalogue(tracked, signals, others, stepped, len(step_segments(rbar)) if stepped else 0)
+    declared = _units(description, outputs, signals, control_input, conversions)
+    hanging = [n for n, v in scenario.initial.items() if declared.get(n) == "rad"
+               and abs(math.remainder(v, 2 * math.pi)) > math.pi / 2]
+    known = catalogue(tracked, signals, others, stepped, len(step_segments(rbar)) if stepped else 0,
+                      hanging)
     for k, requirement in enumerate(scenario.requirements):
         wrong = problem(requirement.metric, known)
         if wrong:
@@ -273,7 +277,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                         outputs, signals, states, control_input, process_inputs, process,
                         tracked, period, step, steps, unit, t, rbar, disturbance, measurement,
                         noisy, measured=measured, metrics=known,
-                        units=_units(description, outputs, signals, control_input, conversions),
+                        units=declared,
                         conversions=conversions)
     if scenario.estimator:
         prepared.kalman = _kalman(prepared, state_outputs)

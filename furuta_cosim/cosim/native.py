@@ -102,7 +102,8 @@ class NativeLoop:
         """The loop in C for this run, starting from the outputs ``values``: ``pick`` the
         fed-back outputs' positions, ``noisy`` the positions among those that get noise. None
         where it does not apply (an estimator, unit conversions, no step helper)."""
-        if os.environ.get(OFF) == "1" or prepared.estimator() is not None or prepared.conversions:
+        if os.environ.get(OFF) == "1" or prepared.estimator() is not None or prepared.conversions \
+                or not getattr(runtime, "native", True):  # a swing-up switches: Python's loop
             return None
         if len(pick) > MAX_SIGNALS or runtime.n_xc > MAX_SIGNALS or not _fits(prepared, session):
             return None
