@@ -81,6 +81,11 @@ def _margin(slacks) -> float:
 STABILITY_SCALE = 0.01
 
 
+def _linear(controller):
+    """The generalized controller of a candidate: itself, or a swing-up file's balance controller."""
+    return getattr(controller, "controller", controller)
+
+
 def _peak(signal: str) -> str:
     """The metric of a signal's largest magnitude (the input's is ``u.peak_abs``)."""
     return "u.peak_abs" if signal == "u" else f"{signal}.max_abs"
@@ -104,7 +109,13 @@ class Evaluator:
 
         self.spec = spec
         self.model = load_model(spec.model)
-        self.space = Space(spec.blocks, self.model, spec.period, spec.discrete)
+        if spec.swingup is not None:
+            from furuta_cosim.controllers import load_controller
+            from furuta_cosim.tuning.space import SwingUpSpace
+
+            self.space = SwingUpSpace(spec.blocks, load_controller(spec.swingup))
+        else:
+            self.space = Space(spec.blocks, self.model, spec.period, spec.discrete)
         self._runs = None  # [(label, prepared, session)], prepared on first use
         self._references = {}  # controller file -> its metrics by run (computed once)
         self._still = {}       # run -> the error metrics of an output that never moves
@@ -116,6 +127,7 @@ class Evaluator:
         return values, violation
 
     def _loop_checks(self, controller: GeneralizedController) -> tuple[dict, float, list]:
+        controller = _linear(controller)  # a swing-up's loop is its balance controller's
         margin = self.spec.constraints.stability_margin
         scale = max(margin, STABILITY_SCALE)  # a mode's slack in units of the margin
         values, violation, slacks = {}, 0.0, []
@@ -190,7 +202,9 @@ class Evaluator:
         from furuta_cosim.design.prefilter import prefilter
 
         tracked = dict.fromkeys(prepared.tracked for _, prepared, _ in self.runs())
-        return {name: prefilter(self.model, controller, name) for name in tracked}
+        if controller is not _linear(controller) and controller.F is not None:  # a swing-up file's own
+            return {controller.tracked_output: controller.F}
+        return {name: prefilter(self.model, _linear(controller), name) for name in tracked}
 
     def _scenarios(self, controller: GeneralizedController, constraints: dict,
                    slacks: list, order=None, early: bool = False) -> Outcome:
@@ -204,11 +218,14 @@ class Evaluator:
         runs = self.ordered(order)
         for position, (label, prepared, _) in enumerate(runs):
             session = self._session(prepared)
-            try:
-                F = prefilter(self.model, controller, prepared.tracked)
-            except DesignError as error:
-                return Outcome(penalty * 2, False, constraints, metrics, f"{label}: no prefilter: {error}")
-            cfile = ControllerFile(controller, spec.period, spec.model, prepared.tracked, F)
+            if isinstance(controller, ControllerFile):  # a swing-up file: its balance's own prefilter
+                cfile = controller
+            else:
+                try:
+                    F = prefilter(self.model, controller, prepared.tracked)
+                except DesignError as error:
+                    return Outcome(penalty * 2, False, constraints, metrics, f"{label}: no prefilter: {error}")
+                cfile = ControllerFile(controller, spec.period, spec.model, prepared.tracked, F)
             limits = self.limits(label, prepared) if early else None
             try:
                 result = evaluate(prepared, session, compile_controller(prepared, cfile), limits=limits)

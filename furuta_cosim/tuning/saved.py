@@ -22,6 +22,11 @@ def save_scored(evaluator: Evaluator, record: dict, path: Path, name: str, descr
                   "origin": record.get("origin") or ""}
     if record.get("criteria"):
         provenance["criteria"] = record["criteria"]
+    if isinstance(controller, ControllerFile):  # a swing-up file with the tuned settings
+        from dataclasses import replace
+
+        save_controller(replace(controller, description=description, provenance=provenance), path)
+        return {"output": tracked, "F": F}
     # the model by a path relative to the file: a run directory travels with its plant
     model = recorded_model(spec.model, Path(path).parent)
     save_controller(ControllerFile(controller, spec.period, model, tracked, F, description,
@@ -40,4 +45,4 @@ def prefilter_of(evaluator: Evaluator, controller) -> tuple[str, float]:
         tracked = next(iter(prefilters))
         return tracked, float(prefilters[tracked])
     tracked = default_output(evaluator.model)
-    return tracked, float(prefilter(evaluator.model, controller, tracked))
+    return tracked, float(prefilter(evaluator.model, getattr(controller, "controller", controller), tracked))

@@ -217,3 +217,50 @@ def _values_of(block: Block, given: np.ndarray, static: bool, cfile) -> tuple[li
         if not fixed_ok:
             return None, "a static controller needs Bc = 0; its fixed entries are not"
     return values, ""
+
+
+@dataclass(frozen=True)
+class SwingUpSpace:
+    """The search over a swing-up's settings (tuning specs with ``controller: {type: swingup}``):
+    each block one setting, ``box`` as it is or ``log`` as 10^value; a point is the base file
+    with those settings."""
+
+    blocks: tuple
+    base: object               # the swing-up file's ControllerFile
+
+    @property
+    def names(self) -> list[str]:
+        return [f"log10|{b.key}|" if b.kind == "log" else b.key for b in self.blocks]
+
+    @property
+    def bounds(self) -> list[tuple[float, float]]:
+        return [(b.low, b.high) for b in self.blocks]
+
+    def dimensions(self):
+        from skopt.space import Real
+
+        return [Real(low, high, name=name) for (low, high), name in zip(self.bounds, self.names)]
+
+    def settings(self, x) -> dict[str, float]:
+        return {b.key: (10.0 ** float(v) if b.kind == "log" else float(v)) for b, v in zip(self.blocks, x)}
+
+    def controller(self, x, name: str = "candidate"):
+        from dataclasses import replace
+
+        return replace(self.base, swingup=self.base.swingup.with_settings(**self.settings(x)), own_name=name)
+
+    def point_of(self, cfile) -> tuple[list[float] | None, str]:
+        """The point of a swing-up file's settings (None when outside the search's ranges)."""
+        if cfile.swingup is None:
+            return None, "it is not a swing-up file"
+        x = []
+        for block in self.blocks:
+            value = getattr(cfile.swingup, block.key)
+            if block.kind == "log":
+                if value <= 0:
+                    return None, f"{block.key} = {value:g} has no logarithm"
+                value = math.log10(value)
+            if not block.low - 1e-12 <= value <= block.high + 1e-12:
+                return None, f"{block.key} is outside [{block.low:g}, {block.high:g}]"
+            x.append(min(max(value, block.low), block.high))
+        return x, "exactly"

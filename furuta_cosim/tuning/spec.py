@@ -129,6 +129,7 @@ class TuningSpec:
     plant: str | None = None           # every scenario runs on this plant (a name or a file)
     notes: tuple[str, ...] = ()        # what running on ``plant`` changed, in words
     fit: "FitSource | None" = None     # where the variants were drawn from, when from a fit
+    swingup: str | None = None         # a swing-up file whose settings are tuned (``blocks``)
 
     @property
     def source(self) -> str:
@@ -195,13 +196,18 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
                                   "baselines", "plant"))
     if top is None:
         check.done()
-    controller = check.mapping(top.get("controller", {}), "controller", required=("n_xc", "model"),
-                               optional=("time", "period")) or {}
-    n_xc = check.number(controller.get("n_xc"), "controller.n_xc", integer=True, minimum=0,
-                        maximum=MAX_STATES) if "n_xc" in controller else None
-    time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
-    period = check.period(controller.get("period", PAPER_PERIOD), "controller.period")
-    model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
+    given_controller = top.get("controller", {})
+    swingup = None
+    if isinstance(given_controller, dict) and given_controller.get("type") == "swingup":
+        swingup, n_xc, time, period, model_name = _swingup_base(check, given_controller, path)
+    else:
+        controller = check.mapping(given_controller, "controller", required=("n_xc", "model"),
+                                   optional=("time", "period")) or {}
+        n_xc = check.number(controller.get("n_xc"), "controller.n_xc", integer=True, minimum=0,
+                            maximum=MAX_STATES) if "n_xc" in controller else None
+        time = check.string(controller.get("time", "continuous"), "controller.time", ("continuous", "discrete"))
+        period = check.period(controller.get("period", PAPER_PERIOD), "controller.period")
+        model_name = check.string(controller.get("model"), "controller.model") if "model" in controller else None
     where = "plant=" if plant is not None else "plant"
     if plant is None and "plant" in top:
         plant = check.string(top["plant"], "plant")
@@ -251,13 +257,16 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
              for name, value in (source.held if source is not None else ())]
     n_x, n_u = model.n, model.B.shape[1]
     shapes = {"Ac": (n_xc, n_xc), "Bc": (n_xc, n_x), "Cc": (n_u, n_xc), "Dc": (n_u, n_x)}
-    parameters = check.mapping(top.get("parameters"), "parameters", optional=tuple(shapes)) or {}
     # a matrix the spec leaves out is zero (Dc excepted: the plant needs feedback)
     resolve = lambda name, key: _for_plant(_controller_file(check, name, key, model), plant, model,  # noqa: E731
                                            model_name, notes)
-    blocks = tuple(_block(check, parameters[key], key, shape, resolve) if key in parameters
-                   else (Block(key, "fixed", shape) if key != "Dc" else _block(check, None, key, shape))
-                   for key, shape in shapes.items())
+    if swingup is not None:
+        blocks = _swingup_blocks(check, top.get("parameters"))
+    else:
+        parameters = check.mapping(top.get("parameters"), "parameters", optional=tuple(shapes)) or {}
+        blocks = tuple(_block(check, parameters[key], key, shape, resolve) if key in parameters
+                       else (Block(key, "fixed", shape) if key != "Dc" else _block(check, None, key, shape))
+                       for key, shape in shapes.items())
     objective = _objective(check, top.get("objective"), resolve)
     constraints = _constraints(check, top.get("constraints", {}))
     optimizer = _optimizer(check, top.get("optimizer", {}))
@@ -304,10 +313,69 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
         check.fail("optimizer.n_initial_points", f"larger than optimizer.n_calls ({optimizer.n_calls})")
     if all(b is not None and b.kind == "fixed" for b in blocks):
         check.fail("parameters", "every matrix is fixed: nothing to tune")
+    if swingup is not None and objective and objective.type == "spectral":
+        check.fail("objective.type", "a swing-up is judged in co-simulation: use a scenarios objective")
     check.done()
     return TuningSpec(name, description, path, n_xc, time == "discrete", period, model_name, blocks,
                       objective, constraints, optimizer, variants, baselines, plant,
-                      tuple(dict.fromkeys(notes)), source)
+                      tuple(dict.fromkeys(notes)), source, swingup)
+
+
+def _swingup_base(check: Checker, section: dict, path: Path):
+    """``controller: {type: swingup, base: FILE}``: the swing-up-and-balance file whose settings
+    are tuned; its balance controller's period and model are the search's."""
+    from furuta_cosim.controllers import load_controller
+
+    check.mapping(section, "controller", required=("type", "base"))
+    name = check.string(section.get("base"), "controller.base")
+    if name is None:
+        check.done()
+    try:
+        base = load_controller(name, path.parent)
+    except ConfigError as error:
+        raise error.within(f"{path}: controller.base") from None
+    if base.swingup is None:
+        raise ConfigError([f"{path}: controller.base: {base.source} is not a swing-up file (type: swingup)"])
+    if not base.controller.discrete:
+        raise ConfigError([f"{path}: controller.base: its balance controller {base.balance} is continuous; "
+                           "a swing-up is tuned around a discrete one"])
+    if not base.model:
+        raise ConfigError([f"{path}: controller.base: its balance controller names no model"])
+    return str(base.path.resolve()), 0, "discrete", base.controller.period, base.model
+
+
+def _swingup_blocks(check: Checker, value) -> tuple:
+    """``parameters: {SETTING: {box: [lo, hi]} or {log: [lo, hi]}}`` of a swing-up's settings:
+    each a scalar block, inside the setting's own range."""
+    from furuta_cosim.swingup import SETTINGS
+
+    tunable = tuple(k for k in SETTINGS if k != "direction")
+    section = check.mapping(value, "parameters", optional=tunable) or {}
+    if not section:
+        check.fail("parameters", f"names no setting to tune (settings: {', '.join(tunable)})")
+    blocks = []
+    for key, entry in section.items():
+        where = f"parameters.{key}"
+        item = check.mapping(entry, where, optional=("box", "log"))
+        if not item or len(item) != 1:
+            if item is not None:
+                check.fail(where, "expected {box: [low, high]} or {log: [low, high]} (powers of 10)")
+            continue
+        kind = next(iter(item))
+        bounds = check.vector(item[kind], f"{where}.{kind}", 2)
+        if bounds is None:
+            continue
+        low, high = bounds
+        _, least, most, _ = SETTINGS[key]
+        values = (10.0 ** low, 10.0 ** high) if kind == "log" and max(abs(low), abs(high)) < 300 else (low, high)
+        if not low < high:
+            check.fail(f"{where}.{kind}", f"expected [low, high] with low < high, got {bounds}")
+        elif values[0] < least or values[1] > most:
+            check.fail(f"{where}.{kind}", f"{key} ranges over [{least:g}, {most:g}]; this range gives "
+                                          f"[{values[0]:g}, {values[1]:g}]")
+        else:
+            blocks.append(Block(key, kind, (1, 1), low, high))
+    return tuple(blocks)
 
 
 def _is_shipped(plant) -> bool:

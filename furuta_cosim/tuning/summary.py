@@ -38,7 +38,7 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     baselines = {}
     for name in spec.baselines:
         cfile = load_controller(name)
-        outcome = evaluator.score(cfile.controller)
+        outcome = evaluator.score(cfile if cfile.swingup is not None else cfile.controller)
         baselines[cfile.name] = json_safe({"objective": outcome.objective,
                                             "feasible": outcome.feasible,
                                             **({"criteria": outcome.criteria}
@@ -62,7 +62,7 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
                             "origin": best.get("origin") or "", "parameters": best["parameters"],
                             "metrics": best["metrics"], "file": "best.yaml",
                             "prefilter": prefilter,
-                            "controller": _matrices(load_controller(folder / "best.yaml").controller)}
+                            "controller": _matrices(_controller_of(load_controller(folder / "best.yaml")))}
     if spec.objective.type != "spectral":
         # the plant FMUs the scores came from, by content: a rebuilt FMU shows as another hash
         document["fmus"] = {prepared.fmu.name: _sha256(prepared.fmu) for _, prepared, _ in evaluator.runs()}
@@ -96,7 +96,18 @@ def _early_line(early) -> list[str]:
             "the loop's stability checks without a co-simulation"]
 
 
+def _controller_of(cfile):
+    """What the summary shows of a controller file: a swing-up file's settings, else its matrices."""
+    if cfile.swingup is None:
+        return cfile.controller
+    from types import SimpleNamespace
+
+    return SimpleNamespace(swingup=cfile.swingup, period=cfile.period)
+
+
 def _matrices(controller) -> dict:
+    if getattr(controller, "swingup", None) is not None:  # a swing-up file: its tuned settings
+        return {"swingup": controller.swingup.settings(), "period": controller.period}
     return {"Ac": controller.Ac.tolist(), "Bc": controller.Bc.tolist(), "Cc": controller.Cc.tolist(),
             "Dc": controller.Dc.tolist(), "period": controller.period}
 
@@ -131,6 +142,8 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         for key in ("Ac", "Bc", "Cc", "Dc"):
             if key in matrices:
                 lines.append(f"- {key} = " + _matrix(matrices[key]))
+        for key, value in (matrices.get("swingup") or {}).items():
+            lines.append(f"- {key} = {value:.6g}")
     else:
         lines.append("No feasible controller was found.")
     for name, digest in (document.get("fmus") or {}).items():
