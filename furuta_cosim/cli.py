@@ -488,6 +488,38 @@ def cmd_identify(args) -> int:
     return 0
 
 
+def cmd_rig_run(args) -> int:
+    from pathlib import Path
+
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.files import output_folder
+    from furuta_cosim.progress import Progress
+    from furuta_cosim.rig.board import board_for
+    from furuta_cosim.rig.runner import run_rig
+
+    if (args.duration is None) == (args.scenario is None):
+        raise ConfigError(["--duration: give --duration SECONDS or --scenario SCENARIO, one of them"])
+    plant = load_plant(args.plant)
+    out = output_folder(Path(args.output or Path("runs") / "rig" / Path(str(args.controller)).stem))
+    board = board_for(args.board, plant, log=out / "board.csv", seed=args.seed)
+    bar = Progress(delay=0.0, unit="s")
+    try:
+        summary = run_rig(args.controller, board, plant, out, duration=args.duration, scenario=args.scenario,
+                          watchdog=args.watchdog, rate_filter=args.rate_filter,
+                          log=lambda line: (bar.close(), print(line, file=sys.stderr)),
+                          progress=lambda t, total: bar("rig", int(t), int(round(total)), ""))
+    finally:
+        bar.close()
+    if args.json:
+        print(dumps(summary))
+    else:
+        from furuta_cosim.rig.runner import summary_text
+
+        print(summary_text(summary), end="")
+        print(f"run folder: {out}")
+    return summary["code"]
+
+
 def cmd_list(args) -> int:
     from furuta_cosim.shipped import listing
 
@@ -682,6 +714,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print fit.json")
     p.set_defaults(handler=cmd_identify)
 
+    p = commands.add_parser("rig", help="run controllers on a rig: a board in real time")
+    rigs = p.add_subparsers(dest="rig", required=True, metavar="ACTION")
+    q = rigs.add_parser("run", help="run a controller on a board, log every sample, leave the rig at 0 V")
+    q.add_argument("controller", help="controller file or name (a swing-up-and-balance file too)")
+    from furuta_cosim.rig.board import BOARDS
+    from furuta_cosim.rig import quanser, virtual  # noqa: F401 - their boards, for the help
+    q.add_argument("--board", default="virtual", metavar="NAME[:OPTIONS]",
+                   help="; ".join(f"{name}: {b.description}" for name, b in BOARDS.items()) + " (default virtual)")
+    q.add_argument("--plant", default="qube-servo-3",
+                   help="the rig's plant file: its limits and sensors, and the virtual board's plant "
+                        "(default qube-servo-3)")
+    length = q.add_mutually_exclusive_group()
+    length.add_argument("--duration", type=float, metavar="SECONDS", help="run this long, regulating at 0")
+    length.add_argument("--scenario", help="run on this scenario's reference, for its duration")
+    q.add_argument("--watchdog", type=float, default=0.1, help="the board's watchdog timeout in s (default 0.1)")
+    q.add_argument("--rate-filter", type=float, default=40.0, metavar="HZ",
+                   help="cutoff of the rates' filtered difference (default 40 Hz)")
+    q.add_argument("--seed", type=int, default=0, help="the virtual board's sensor noise (default 0)")
+    q.add_argument("-o", "--output", metavar="DIR", help="run folder (default runs/rig/<controller>)")
+    q.add_argument("--json", action="store_true", help="print summary.json")
+    q.set_defaults(handler=cmd_rig_run)
+
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")
     p.set_defaults(handler=cmd_validate_fmu)
@@ -711,7 +765,8 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "baselines": "--baselines", "update": "--update", "budget": "--budget",
          "overrides": "--params", "run_dir": "-o", "output": "-o", "controllers": "--controller",
          "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit",
-         "model": "--model"}
+         "model": "--model", "duration": "--duration", "scenario": "--scenario",
+         "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

@@ -445,7 +445,8 @@ class Report:
 
 def scenario_files(names: Sequence[str | Path] | None) -> list[Path]:
     """The scenario files named (files, names of ``scenarios/``, or folders of scenario
-    files); none named: every shipped scenario."""
+    files, rig checks among them: :mod:`furuta_cosim.rig.check`); none named: every shipped
+    scenario."""
     from furuta_cosim.scenario import scenario_path
 
     if not names:
@@ -540,7 +541,15 @@ def regress(names: Sequence[str | Path] | None = None, *, update: bool = False,
     jobs = []   # (prepared, compiled, baseline path, baseline or None)
     problems = []
     unfit = []  # cases of scenarios the given FMU cannot run
+    from furuta_cosim.rig.check import is_rig_check, run_rig_check
+
     for path in scenario_files(names):
+        if is_rig_check(path):  # a rig log held as a baseline: the model replayed on it
+            name, status, beyond, checked, notes = run_rig_check(path)
+            unfit.append(Case(name, "replay", Path(path), "unchanged" if update else status,
+                              [Difference("replay", f"{name} RMS", f"<= {tol:g}", rms, "simulated - logged, SI units")
+                               for name, tol, rms in beyond], checked, notes=notes))
+            continue
         scenario = load_scenario(path)
         try:
             if plant is not None:

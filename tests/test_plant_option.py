@@ -172,7 +172,7 @@ def test_a_plant_states_the_control_periods_it_allows(capsys, tmp_path):
 @pytest.mark.parametrize("limits, message", [
     ("{control_period: {min: 0.01, max: 0.001}}", "limits.control_period: min (0.01) is above max (0.001)"),
     ("{control_period: {max: -1}}", "limits.control_period.max: must be > 0, got -1"),
-    ("{period: 1}", "limits.period: unknown key (expected one of: control_period)"),
+    ("{period: 1}", "limits.period: unknown key (expected one of: control_period, current, stall_seconds"),
     ("[1, 2]", "limits: expected a mapping"),
 ])
 def test_a_plants_limits_are_checked_like_the_rest_of_it(tmp_path, limits, message):

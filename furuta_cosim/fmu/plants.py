@@ -45,6 +45,10 @@ class PlantSet:
     linear: LinearSpec | None = None
     # the rig's own limits: control_period (min, max) in s, either None when not stated
     control_period: tuple = (None, None)
+    # what a supervisor holds a rig to (``limits``: voltage, current, theta0, stall) and how the
+    # rig's sensors read it (``sensors``): see RIG_LIMITS and SENSORS
+    limits: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
+    sensors: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
 
 
 def content_sha256(plant: PlantSet) -> str:
@@ -57,7 +61,8 @@ def content_sha256(plant: PlantSet) -> str:
         body = {"model": plant.model, "linear": repr(plant.linear)}
     else:
         body = {"model": plant.model, "parameters": dict(sorted(plant.parameters.items())),
-                "control_period": list(plant.control_period)}
+                "control_period": list(plant.control_period), "limits": dict(plant.limits),
+                "sensors": dict(plant.sensors)}
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
 
 
@@ -157,21 +162,67 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         parameters.update(base.parameters)
     parameters.update(check.numbers(top.get("parameters", {}), "parameters"))
     period = base.control_period if "extends" in top else (None, None)
+    limits = dict(base.limits) if "extends" in top else {}
+    sensors = dict(base.sensors) if "extends" in top else {}
     if "limits" in top:
         period = _limits(check, top["limits"], period)
+        limits.update(_rig_limits(check, top["limits"]))
+    if "sensors" in top:
+        section = check.mapping(top["sensors"], "sensors", optional=tuple(SENSORS))
+        for key, value in (section or {}).items():
+            if key in SENSORS:
+                low, high, _ = SENSORS[key]
+                number = check.number(value, f"sensors.{key}", minimum=low, maximum=high)
+                if number is not None and key.endswith("_sign") and number not in (1.0, -1.0):
+                    check.fail(f"sensors.{key}", f"expected 1 or -1, got {number:g}")
+                elif number is not None:
+                    sensors[key] = number
     if "provenance" in top:  # where the values come from (identify writes it): read by people only
         check.mapping(top["provenance"], "provenance", optional=tuple(top["provenance"])
                       if isinstance(top["provenance"], dict) else ())
     check.done()
     return PlantSet(path.stem, path, model, str(description), Frozen(parameters),
-                    control_period=period)
+                    control_period=period, limits=Frozen(limits), sensors=Frozen(sensors))
+
+
+# what a supervisor holds a rig to; each is optional, and a rig plant without ``voltage`` is
+# driven unlimited (``rig run`` says so)
+RIG_LIMITS = {
+    "voltage": (0.0, 1e3, "the amplifier's limit: every command is clipped to +-voltage (V)"),
+    "current": (0.0, 1e3, "a current beyond +-current trips the supervisor (A)"),
+    "theta0": (0.0, 1e3, "an arm angle beyond +-theta0 trips the supervisor (rad)"),
+    "stall_voltage": (0.0, 1e3, "a command above this for stall_seconds while the arm stands still trips (V)"),
+    "stall_seconds": (0.0, 1e3, "see stall_voltage (s)"),
+}
+# how a rig's sensors read it: encoder counts per revolution of each, the sense of each angle
+# against the model's, and the current sensor's noise (the virtual board reads the plant so)
+SENSORS = {
+    "encoder_counts": (1.0, 1e9, "encoder counts per revolution, quadrature (2048 on a QUBE)"),
+    "arm_sign": (-1.0, 1.0, "+1 when the arm encoder counts up as the model's theta0 grows"),
+    "pendulum_sign": (-1.0, 1.0, "+1 when the pendulum encoder counts up as theta1 grows"),
+    "current_noise": (0.0, 1e3, "standard deviation of the current sensor (A)"),
+}
+
+
+def _rig_limits(check: Checker, value) -> dict:
+    limits = value if isinstance(value, dict) else {}  # its keys are checked by _limits
+    found = {}
+    for key in RIG_LIMITS:
+        if key in limits:
+            low, high, _ = RIG_LIMITS[key]
+            number = check.number(limits[key], f"limits.{key}", positive=True, maximum=high)
+            if number is not None:
+                found[key] = number
+    if ("stall_voltage" in limits) != ("stall_seconds" in limits):
+        check.fail("limits", "give stall_voltage and stall_seconds together")
+    return found
 
 
 def _limits(check: Checker, value, inherited: tuple) -> tuple:
     """``limits: {control_period: {min: S, max: S}}``: the periods the rig allows (its I/O
     hardware, the model's substeps); either bound may be left out, and one not given is the
     base plant's."""
-    limits = check.mapping(value, "limits", optional=("control_period",))
+    limits = check.mapping(value, "limits", optional=("control_period",) + tuple(RIG_LIMITS))
     if not limits or "control_period" not in limits:
         return inherited
     bounds = check.mapping(limits["control_period"], "limits.control_period", optional=("min", "max"))
@@ -188,7 +239,7 @@ def _limits(check: Checker, value, inherited: tuple) -> tuple:
 
 
 MAX_EXTENDS = 32  # plant files in one extends chain: a fitted plant on a rig's on a shipped one is 3
-_NONLINEAR_KEYS = ("description", "extends", "parameters", "provenance", "limits")
+_NONLINEAR_KEYS = ("description", "extends", "parameters", "provenance", "limits", "sensors")
 _LINEAR_KEYS = ("description", "identifier", "time", "period", "substeps", "A", "B", "C", "D",
                 "inputs", "outputs", "time_unit", "states", "x0")
 # an identifier names the FMU's C functions and files: no C keyword, no FMI name

@@ -36,7 +36,7 @@ MAX_CSV_BYTES = 200_000_000
 UNIFORM_TOLERANCE = 0.01
 LINE = "\0line"  # read_csv's entry for the line number of each row in the file
 _KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
-         "outputs", "start", "parameters", "delimiter")
+         "outputs", "start", "parameters", "delimiter", "rig")
 _SIGNAL_KEYS = ("column", "unit", "scale", "offset")
 
 
@@ -150,6 +150,8 @@ def load_experiment(path: str | Path) -> Experiment:
     outputs = _outputs(check, top["outputs"], table, columns, keep)
     start = _start(check, top.get("start", {}), outputs)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
+    if "rig" in top:  # what `rig run` records of the run (its board, controller, period): for people
+        check.mapping(top["rig"], "rig", optional=tuple(top["rig"]) if isinstance(top["rig"], dict) else ())
     for state in start:
         if f"{state}_start" in parameters:  # one of the two would be dropped without a word
             check.fail(f"parameters.{state}_start", f"sets the start of {state}, which start.{state} "

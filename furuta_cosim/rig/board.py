@@ -1,0 +1,128 @@
+"""The board interface: what the runner needs of a rig's I/O, and the registry of boards.
+
+A board reads the arm and pendulum encoders (counts), the motor current where it has a
+sensor, writes the motor voltage, enables and disables the amplifier, and arms and reloads a
+watchdog that drives the output to 0 V when it is not reloaded in time. It also gives the
+runner its clock: the host's monotonic clock for a board in real time, or a simulated one for
+a virtual board run as fast as it can. A new board is one subclass of :class:`Board`,
+registered by being defined (``BOARDS``); ``rig run --board NAME[:OPTIONS]`` and the docs read
+the registry.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+from furuta_cosim.errors import ConfigError
+
+BOARDS: dict[str, type["Board"]] = {}
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One read of the board: encoder counts, and the current (A) where there is a sensor."""
+
+    arm: int
+    pendulum: int
+    current: float | None = None
+
+
+class Clock:
+    """The host's monotonic clock: ``now()`` in seconds, ``wait_until(t)`` sleeps then spins
+    the last half millisecond (a sleep alone overshoots by up to a scheduler tick)."""
+
+    SPIN = 0.0005
+
+    def now(self) -> float:
+        return time.perf_counter()
+
+    def wait_until(self, deadline: float) -> float:
+        remaining = deadline - time.perf_counter()
+        if remaining > self.SPIN:
+            time.sleep(remaining - self.SPIN)
+        while (now := time.perf_counter()) < deadline:
+            pass
+        return now
+
+
+class Board:
+    """One rig's I/O (see the module docstring). Subclasses set ``name`` and ``description``
+    and implement the calls; :meth:`safe` is what every stop ends with."""
+
+    name = ""
+    description = ""
+    has_current = True
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("name"):  # a board of its own, not a variant of one (a test's)
+            BOARDS[cls.name] = cls
+
+    # -- the interface ---------------------------------------------------------------------
+    def open(self) -> None:
+        """Connect; the amplifier stays disabled and the output at 0 V."""
+        raise NotImplementedError
+
+    def zero_encoders(self) -> None:
+        """Count from here: the rig at rest, the arm at its zero, the pendulum hanging."""
+        raise NotImplementedError
+
+    def read(self) -> Reading:
+        raise NotImplementedError
+
+    def write(self, volts: float) -> None:
+        raise NotImplementedError
+
+    def enable(self) -> None:
+        """Enable the amplifier."""
+        raise NotImplementedError
+
+    def disable(self) -> None:
+        raise NotImplementedError
+
+    def arm_watchdog(self, timeout: float) -> None:
+        """Start the watchdog: 0 V and the amplifier disabled unless reloaded within ``timeout`` s."""
+        raise NotImplementedError
+
+    def reload_watchdog(self) -> bool:
+        """Reload it; False once it has expired (the output is then held at 0 V)."""
+        raise NotImplementedError
+
+    def stop_watchdog(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Disconnect (after :meth:`safe`)."""
+        raise NotImplementedError
+
+    def clock(self) -> Clock:
+        return Clock()
+
+    # -- what every stop ends with ---------------------------------------------------------
+    def safe(self) -> list[str]:
+        """0 V, the amplifier disabled, the watchdog stopped: each step tried whatever the one
+        before did; what failed is returned in words (an empty list: all done)."""
+        failed = []
+        for what, call in (("write 0 V", lambda: self.write(0.0)), ("disable the amplifier", self.disable),
+                           ("stop the watchdog", self.stop_watchdog)):
+            try:
+                call()
+            except Exception as error:  # noqa: BLE001 - every step is tried, each failure said
+                failed.append(f"{what}: {type(error).__name__}: {error}")
+        return failed
+
+
+def board_for(text: str, plant=None, **options) -> Board:
+    """The board named by ``--board NAME[:OPTIONS]`` (``virtual``, ``quanser``,
+    ``quanser:qube_servo3_usb@0``); ``plant`` is the rig's plant file (its sensors and, for
+    the virtual board, the plant it runs)."""
+    from furuta_cosim.rig import quanser, virtual  # noqa: F401 - they register their boards
+
+    name, _, argument = str(text).partition(":")
+    if name not in BOARDS:
+        from furuta_cosim.config import did_you_mean
+
+        raise ConfigError([f"board: expected one of {', '.join(BOARDS)} (NAME or NAME:OPTIONS), got "
+                           f"{text!r}{did_you_mean(name, BOARDS)}"])
+    return BOARDS[name].from_argument(argument, plant=plant, **options)

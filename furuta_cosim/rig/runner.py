@@ -1,0 +1,347 @@
+"""``rig run``: a controller on a board in real time, every sample logged.
+
+At each control period T (the controller's own: 2 ms on the QUBE) the runner waits for the
+sample's deadline on the board's clock, reads the encoders and the current, makes the state
+the controller feeds back (angles from counts; rates by a filtered difference, the bilinear
+form of ``w s / (s + w)`` at ``rate_filter`` Hz; the current as measured), computes the
+command (the same generated controller code a simulation runs, swing-up and catch included),
+lets the supervisor check the sample and clip the command to the amplifier's limit, writes it,
+reloads the board's watchdog and records the sample. The loop runs in Python: a sample's
+reading, controller and writing take tens of microseconds of a 2 ms period here (measured by
+``tools/bench_rig.py``), a controller FMU would add an FMI call per sample for nothing, and the
+C loop of the simulations steps an FMU, not a board.
+
+A run folder holds ``log.csv`` (every sample: its time, how late it started and how long it
+took, the reference, the command and the voltage applied, the angles, the current, the rates,
+the counts, the mode), ``experiment.yaml`` (the log as an experiment file: the voltage applied
+is its input, so ``replay``, ``identify`` and ``regress`` read it as they read any log), the
+controller files it ran (``controllers/``), ``summary.json`` and ``summary.md`` (why it
+stopped, the loop's timing, peaks, the swing-up's catch), and for the virtual board
+``board.csv``, what the "hardware" applied.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from furuta_cosim.documents import dumps
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.files import folder as make_folder, output_folder, write_text
+from furuta_cosim.rig.board import Board
+from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TERMINATED, TRIPPED, Limits,
+                                         Supervisor, Trip)
+
+COLUMNS = ("t", "late", "compute", "r", "V_command", "V", "theta0", "theta1", "i", "dtheta0",
+           "dtheta1", "arm_counts", "pendulum_counts", "mode")  # mode: 0 swinging up, 1 the controller
+RATE_FILTER = 40.0       # Hz: the rates' filtered difference
+WATCHDOG = 0.1           # s: the board's watchdog timeout
+MAX_DURATION = 3600.0    # s: one run at most (its log is kept in memory)
+LATE_WARNING = 0.1       # a sample later than this fraction of the period is worth a warning
+
+
+def controller_for(controller, period: float | None = None, scenario=None):
+    """(controller file, runtime controller, reference times and values, period) for a rig
+    run: on a scenario's reference and duration (its timing and delay), or regulating at 0."""
+    from furuta_cosim.controllers import fit, load_controller
+    from furuta_cosim.cosim.runtime import RuntimeController
+    from furuta_cosim.design.controller import discretize_controller
+    from furuta_cosim.swingup import SwingUpRuntime
+
+    if scenario is not None:
+        from furuta_cosim.cosim import prepare
+        from furuta_cosim.cosim.evaluation import compile_controller
+        from furuta_cosim.scenario import load_scenario
+
+        prepared = prepare(load_scenario(scenario))
+        compiled = compile_controller(prepared, controller, key="controller")
+        return compiled.cfile, compiled.runtime, prepared.t, prepared.rbar, prepared.control_period
+    cfile = controller if not isinstance(controller, (str, Path)) else load_controller(controller)
+    period = period or cfile.period or cfile.controller.period
+    if not period:
+        raise ConfigError([f"{cfile.source}: period: missing (a rig runs a controller at its period)"])
+    cfile = fit(cfile, plant="the rig", states=5, period=period if cfile.controller.discrete else None)
+    runtime = RuntimeController(discretize_controller(cfile.controller, period),
+                                cfile.F if cfile.F is not None else 1.0)
+    if cfile.swingup is not None:
+        runtime = SwingUpRuntime(runtime, cfile.swingup)
+    return cfile, runtime, None, None, period
+
+
+class _Rates:
+    """Filtered differences of the two angles (bilinear ``w s / (s + w)``)."""
+
+    def __init__(self, period: float, hz: float):
+        w = 2.0 * math.pi * hz
+        self.a, self.b = (2.0 - w * period) / (2.0 + w * period), 2.0 * w / (2.0 + w * period)
+        self.last = None
+        self.rates = [0.0, 0.0]
+
+    def __call__(self, angles):
+        if self.last is not None:
+            self.rates = [self.a * r + self.b * (a - p) for r, a, p in zip(self.rates, angles, self.last)]
+        self.last = angles
+        return self.rates
+
+
+def run_rig(controller, board: Board, plant, output: str | Path, *, duration: float | None = None,
+            scenario=None, watchdog: float = WATCHDOG, rate_filter: float = RATE_FILTER,
+            limits: Limits | None = None, log: Callable[[str], None] = lambda line: None,
+            progress: Callable[[float, float], None] | None = None) -> dict:
+    """Run ``controller`` on ``board`` and write the run folder ``output`` (module docstring).
+
+    Parameters
+    ----------
+    controller : str, path or ControllerFile
+        Any controller file (a swing-up-and-balance file too).
+    board : Board
+        From :func:`furuta_cosim.rig.board.board_for` (not yet opened).
+    plant : PlantSet
+        The rig's plant file: its ``limits`` (the supervisor's) and ``sensors`` (counts per
+        revolution, signs).
+    output : path
+        The run folder (new or empty).
+    duration : float, optional
+        Seconds to run (regulating at a reference of 0); or ``scenario``.
+    scenario : str or path, optional
+        Run on the scenario's reference, for its duration.
+    watchdog : float
+        The board's watchdog timeout (s).
+    rate_filter : float
+        The cutoff of the rates' filtered difference (Hz).
+    limits : Limits, optional
+        Instead of the plant file's.
+    log : callable
+        Takes the lines a run says (a warning, why it stopped).
+    progress : callable, optional
+        ``progress(t, duration)`` about once a second.
+
+    Returns
+    -------
+    dict
+        ``summary.json``: ``status`` (finished, tripped), ``code`` (0, 1), ``reason``, timing,
+        peaks, the swing-up's catch, the files.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        After the rig is safe and every file written (Ctrl-C; SIGTERM in the CLI).
+    """
+    if (duration is None) == (scenario is None):
+        raise ConfigError(["duration: give a duration or a scenario (`scenario`), one of them"])
+    if duration is not None and (not math.isfinite(duration) or not 0 < duration <= MAX_DURATION):
+        raise ConfigError([f"duration: expected seconds in (0, {MAX_DURATION:g}], got {duration}"])
+    for name, value, low, high in (("watchdog", watchdog, 0.005, 10.0), ("rate_filter", rate_filter, 0.1, 1e4)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
+            raise ConfigError([f"{name}: expected a number in [{low:g}, {high:g}], got {value}"])
+    out = output_folder(output)
+    if out.is_dir() and any(out.iterdir()):
+        raise ConfigError([f"output {out}: holds files already; a rig run takes a new or empty folder"])
+    cfile, runtime, times, reference, period = controller_for(controller, scenario=scenario)
+    steps = int(round(duration / period)) if times is None else len(times)
+    reference = np.zeros(steps) if reference is None else np.asarray(reference, dtype=float)
+    limits = limits or Limits.of(plant)
+    if limits.voltage is None:
+        log(f"warning: {plant.path}: limits.voltage is not set: commands go to the board unclipped "
+            "(set your amplifier's limit)")
+    supervisor = Supervisor(limits, period)
+    counts = float(plant.sensors.get("encoder_counts", 2048))
+    signs = (float(plant.sensors.get("arm_sign", 1)), float(plant.sensors.get("pendulum_sign", 1)))
+    per_count = 2.0 * math.pi / counts
+    rates = _Rates(period, rate_filter)
+    rows = np.full((steps, len(COLUMNS)), np.nan)
+    mode = getattr(runtime, "mode", None)
+    status, code, reason, failed = "finished", FINISHED, f"ran its {steps * period:g} s", []
+    done = 0
+    runtime.reset()
+    board.open()  # a board that cannot be opened drove nothing: one error, no run folder
+    make_folder(out, root=True)
+    started_wall = time.time()
+    try:
+        board.zero_encoders()
+        board.write(0.0)
+        board.arm_watchdog(watchdog)
+        board.enable()
+        clock = board.clock()
+        start = clock.now() + 2 * period
+        shown = 0.0
+        for k in range(steps):
+            deadline = start + k * period
+            woke = clock.wait_until(deadline)
+            reading = board.read()
+            theta0 = signs[0] * reading.arm * per_count
+            theta1 = math.pi + signs[1] * reading.pendulum * per_count  # zeroed hanging
+            dtheta0, dtheta1 = rates((theta0, theta1))
+            current = reading.current if reading.current is not None else 0.0
+            x = [theta0, dtheta0, theta1, dtheta1, current]
+            command = runtime.control(x, float(reference[k]))
+            volts = supervisor.clip(command)
+            late = woke - deadline
+            rows[k] = (k * period, late, 0.0, reference[k], command, volts, theta0, theta1, current,
+                       dtheta0, dtheta1, reading.arm, reading.pendulum,
+                       runtime.mode if mode is not None else 1.0)
+            done = k + 1
+            supervisor.check(k * period, x, reading.current, volts, late)
+            board.write(volts)
+            if not board.reload_watchdog():
+                raise Trip("watchdog", f"the board's watchdog had expired at t = {k * period:.4f} s "
+                                       "(the loop stalled longer than its timeout)")
+            rows[k, 2] = clock.now() - woke
+            if progress and k * period - shown >= 1.0:
+                shown = k * period
+                progress(shown, steps * period)
+    except Trip as trip:
+        status, code, reason = "tripped", TRIPPED, trip.reason
+        if done and trip.limit != "deadline":
+            rows[done - 1, 5] = 0.0  # the command of the tripping sample was never written
+    except KeyboardInterrupt as stop:
+        terminated = type(stop).__name__ == "_Terminated"
+        status, code = ("terminated", TERMINATED) if terminated else ("interrupted", INTERRUPTED)
+        reason = f"{'SIGTERM' if terminated else 'Ctrl-C'} at t = {max(done - 1, 0) * period:.4f} s"
+        raise
+    except BaseException as error:
+        status, code = "failed", TRIPPED
+        reason = f"{type(error).__name__}: {error}"
+        raise
+    finally:
+        failed = board.safe()
+        try:
+            board.close()
+        except Exception as error:  # noqa: BLE001 - the rig is safe; the log is what matters now
+            failed.append(f"close: {type(error).__name__}: {error}")
+        summary = _write(out, rows[:done], cfile, board, plant, period, status, code, reason, failed,
+                         started_wall, runtime, limits, scenario)
+        log(f"{'stopped' if code else 'done'}: {reason}; the rig is at 0 V with the amplifier "
+            f"{'off' if not failed else 'in an unknown state: ' + '; '.join(failed)}")
+    return summary
+
+
+def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, code, reason, failed,
+           started_wall, runtime, limits, scenario) -> dict:
+    from furuta_cosim.metrics import regulation_settling
+    from furuta_cosim.swingup import wrap
+
+    kept = _keep_controllers(cfile, out)
+    lines = [",".join(COLUMNS)] + [",".join(_cell(v) for v in row) for row in rows]
+    write_text(out / "log.csv", "\n".join(lines) + "\n")
+    counts = float(plant.sensors.get("encoder_counts", 2048))
+    experiment = {
+        "name": "rig-run", "description": f"{cfile.name} on the {board.name} board, {status}: {reason}",
+        "data": "log.csv", "header": 1, "columns": list(COLUMNS), "time": "t",
+        "inputs": {"V": {"column": "V", "unit": "V"}},
+        "outputs": {"theta0": {"column": "theta0", "unit": "rad", "quantum": 2 * math.pi / counts},
+                    "theta1": {"column": "theta1", "unit": "rad", "quantum": 2 * math.pi / counts}},
+        "start": {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
+        "rig": {"board": board.name, "controller": kept, "period": period, "status": status},
+    }
+    if board.has_current:
+        experiment["outputs"]["i"] = {"column": "i", "unit": "A",
+                                      "noise": float(plant.sensors.get("current_noise", 0.004)) or 0.004}
+    if len(rows) < 2:
+        experiment["description"] += " (fewer than two samples: not an experiment to replay)"
+    write_text(out / "experiment.yaml", "# Written by furuta-cosim rig run: the run's log as an "
+               "experiment file (replay, identify, regress read it).\n"
+               + yaml.safe_dump(experiment, sort_keys=False))
+    t = rows[:, 0] if len(rows) else np.zeros(0)
+    late, compute = rows[:, 1] if len(rows) else np.zeros(0), rows[:, 2] if len(rows) else np.zeros(0)
+    intervals = np.diff(t + late) if len(rows) > 1 else np.zeros(0)
+    overruns = int(np.sum(late[1:] + compute[1:] > period)) if len(rows) > 1 else 0
+    timing = {"late_ms": _stats(1000 * late), "jitter_ms": _stats(1000 * np.abs(intervals - period)),
+              "compute_ms": _stats(1000 * compute[np.isfinite(compute)]), "overruns": overruns,
+              "period_ms": 1000 * period}
+    warnings = []
+    if len(rows) and timing["late_ms"]["p99"] > LATE_WARNING * 1000 * period:
+        warnings.append(f"the loop's samples started up to {timing['late_ms']['p99']:.3f} ms late (99th "
+                        f"percentile), more than {100 * LATE_WARNING:g} % of the {1000 * period:g} ms period "
+                        "the controller was designed for")
+    if overruns:
+        warnings.append(f"{overruns} sample(s) wrote their command after the next sample's deadline")
+    if limits.voltage is None:
+        warnings.append("the rig's plant file states no voltage limit: commands went unclipped")
+    summary = {"status": status, "code": code, "reason": reason, "board": board.name,
+               "plant": str(plant.path), "controller": cfile.name, "scenario": str(scenario) if scenario else None,
+               "period": period, "samples": int(len(rows)), "seconds": float(len(rows) * period),
+               "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started_wall)),
+               "safe": not failed, "safe_failures": failed, "timing": timing, "warnings": warnings,
+               "limits": {k: v for k, v in limits.__dict__.items() if v is not None}}
+    if len(rows):
+        summary["peaks"] = {"V": float(np.max(np.abs(rows[:, 5]))), "V_command": float(np.max(np.abs(rows[:, 4]))),
+                            "theta0": float(np.max(np.abs(rows[:, 6]))), "i": float(np.max(np.abs(rows[:, 8])))}
+    if getattr(runtime, "mode", None) is not None and len(rows):
+        caught = [k for k, m in runtime.switches if m == 1.0]
+        wrapped = np.array([wrap(v) for v in rows[:, 7]])
+        upright = regulation_settling(t, wrapped) if abs(wrapped[0]) > math.pi / 2 else None
+        summary["swingup"] = {"caught_at": float(caught[0] * period) if caught else None,
+                              "falls": sum(1 for _, m in runtime.switches if m == 0.0),
+                              "upright_at": None if upright is None or not math.isfinite(upright) else upright}
+    files = sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) + ["summary.json", "summary.md"]
+    summary["files"] = sorted(set(files))
+    write_text(out / "summary.json", dumps(summary, indent=2) + "\n")
+    write_text(out / "summary.md", summary_text(summary))
+    return summary
+
+
+def _cell(value: float) -> str:
+    return "" if not math.isfinite(value) else repr(float(value))
+
+
+def _stats(values: np.ndarray) -> dict:
+    if not len(values):
+        return {"median": 0.0, "p99": 0.0, "max": 0.0}
+    return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)),
+            "max": float(np.max(values))}
+
+
+def _keep_controllers(cfile, out: Path) -> str:
+    """The controller files a run ran, copied into ``controllers/`` (a swing-up file with its
+    balance controller beside it): the run folder is whole. Its path relative to ``out``."""
+    from dataclasses import replace
+
+    from furuta_cosim.controllers import save_controller
+
+    folder = make_folder(out / "controllers")
+    if cfile.swingup is not None:
+        balance = replace(cfile, swingup=None, balance=None, own_name=None, plant=None,
+                          path=None, provenance=dict(cfile.provenance))
+        balance_path = save_controller(balance, folder / f"{cfile.controller.name}.yaml")
+        cfile = replace(cfile, balance=balance_path)
+    save_controller(cfile, folder / f"{cfile.name}.yaml")
+    return f"controllers/{cfile.name}.yaml"
+
+
+def summary_text(summary: dict) -> str:
+    """summary.md: why the run stopped, the loop's timing, its peaks, the swing-up's catch."""
+    timing = summary["timing"]
+    lines = [f"# rig run: {summary['controller']} on the {summary['board']} board", "",
+             f"**{summary['status']}** (exit code {summary['code']}): {summary['reason']}. "
+             f"{summary['samples']} samples of {1000 * summary['period']:g} ms ({summary['seconds']:.3f} s); "
+             + ("the rig was left at 0 V with the amplifier off." if summary["safe"] else
+                "leaving the rig safe failed: " + "; ".join(summary["safe_failures"])), "",
+             "| loop timing (ms) | median | 99th percentile | max |", "|---|---|---|---|"]
+    for key, label in (("late_ms", "start after the deadline"), ("jitter_ms", "period jitter"),
+                       ("compute_ms", "read, control, write")):
+        s = timing[key]
+        lines.append(f"| {label} | {s['median']:.4f} | {s['p99']:.4f} | {s['max']:.4f} |")
+    lines += ["", f"Deadline overruns (a command written after the next deadline): {timing['overruns']}."]
+    if "peaks" in summary:
+        p = summary["peaks"]
+        lines += ["", f"Peaks: {p['V']:.3f} V applied ({p['V_command']:.3f} V commanded), arm "
+                      f"{p['theta0']:.3f} rad, current {p['i']:.3f} A."]
+    if "swingup" in summary:
+        s = summary["swingup"]
+        caught = "never caught" if s["caught_at"] is None else f"caught at {s['caught_at']:.3f} s"
+        upright = ("" if s["upright_at"] is None else f", upright (within 2 % of pi) from {s['upright_at']:.3f} s")
+        lines += ["", f"Swing-up: {caught}{upright}; {s['falls']} fall(s)."]
+    lines += [""] + [f"- warning: {w}" for w in summary["warnings"]]
+    lines += ["", "Files: " + ", ".join(summary["files"]) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def read_summary(folder: str | Path) -> dict:
+    return json.loads((Path(folder) / "summary.json").read_text())

@@ -1,0 +1,340 @@
+"""The virtual board: a rig that is a plant FMU, read and driven as a real board is.
+
+:class:`VirtualRig` is the hardware: the plant FMU of a plant file (a fitted one, say, or one
+with more friction than the fit: a "true" plant unlike the model) stepped every ``step``
+seconds with the voltage the amplifier applies: the last command, ``delay`` seconds after it
+was written (transport over USB), clipped to the amplifier's range, 0 while the amplifier is
+disabled or the watchdog has expired. Its sensors read as a QUBE's do (the plant file's
+``sensors``): encoder counts (``encoder_counts`` per revolution, zeroed where the rig rests
+when the runner starts) and a current with noise. It keeps its own log of what it applied,
+independent of the runner's (``board.csv``), so a test can check what the "hardware" saw.
+
+:class:`VirtualBoard` runs it in real time in a process of its own (``paced``: the runner's
+timing is as on hardware, and a runner killed with -9 leaves it running until its watchdog
+drives it to 0 V, as a real board's would), or in the runner's process on a simulated clock
+that advances as the runner waits (``paced=False``: as fast as it can, for tests and
+benchmarks; the same rig, sample for sample).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+import time
+from pathlib import Path
+
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.rig.board import Board, Clock, Reading
+
+AMPLIFIER = 15.0        # V: a QUBE's amplifier range, the virtual one's saturation by default
+STEP = 0.0005           # s: the plant's step between the runner's samples
+DELAY = 0.001           # s: from a write to the voltage at the motor
+ADC_QUANTUM = 6.0 / 4096  # A: a 12-bit current sensor over +-3 A
+LOG_COLUMNS = ("t", "V_written", "V_applied", "enabled", "watchdog_expired", "theta0", "theta1", "i")
+
+
+class VirtualRig:
+    """The simulated hardware (see the module docstring); ``advance(t)`` steps it to ``t``."""
+
+    def __init__(self, fmu: str, start: dict, sensors: dict, *, amplifier: float = AMPLIFIER,
+                 delay: float = DELAY, step: float = STEP, seed: int = 0, capacity: int = 1_000_000):
+        import numpy as np
+
+        from furuta_cosim.fmu.session import PlantSession
+
+        self.session = PlantSession.open(fmu)
+        self.session.reset(start)
+        self.session.set_io(["V"], ["theta0", "theta1", "i"])
+        self.theta0, self.theta1, self.current = self.session.get(["theta0", "theta1", "i"])
+        self.counts = float(sensors.get("encoder_counts", 2048))
+        self.signs = (float(sensors.get("arm_sign", 1)), float(sensors.get("pendulum_sign", 1)))
+        self.noise = float(sensors.get("current_noise", 0.004))
+        self.amplifier, self.delay, self.step = float(amplifier), float(delay), float(step)
+        self.rng = np.random.default_rng(seed)
+        self.t = 0.0
+        self.zero = (self.theta0, self.theta1)
+        self.pending: list[tuple[float, float]] = []   # (when it reaches the motor, volts)
+        self.written = 0.0      # the last command written
+        self.level = 0.0        # what the amplifier is driving toward (after the delay)
+        self.enabled = False
+        self.watchdog: tuple[float, float] | None = None  # (timeout, last reload)
+        self.expired = False
+        self.log = np.zeros((min(capacity, 10_000), len(LOG_COLUMNS)))
+        self.rows = 0
+        self.capacity = capacity
+
+    # -- what the runner does through the board ------------------------------------------------
+    def write(self, volts: float) -> None:
+        if not math.isfinite(volts):
+            volts = 0.0  # a board drives no NaN: the runner's supervisor has already refused it
+        self.written = volts
+        self.pending.append((self.t + self.delay, volts))
+
+    def arm(self, timeout: float) -> None:
+        self.watchdog = (float(timeout), self.t)
+
+    def reload(self) -> bool:
+        if self.watchdog is not None and not self.expired:
+            self.watchdog = (self.watchdog[0], self.t)
+        return not self.expired
+
+    def zero_encoders(self) -> None:
+        self.zero = (self.theta0, self.theta1)
+
+    def reading(self) -> Reading:
+        scale = self.counts / (2.0 * math.pi)
+        arm = int(round(self.signs[0] * (self.theta0 - self.zero[0]) * scale))
+        pendulum = int(round(self.signs[1] * (self.theta1 - self.zero[1]) * scale))
+        current = self.current + float(self.rng.normal(0.0, self.noise)) if self.noise else self.current
+        current = round(current / ADC_QUANTUM) * ADC_QUANTUM
+        return Reading(arm, pendulum, current)
+
+    # -- the hardware's own time -----------------------------------------------------------------
+    def applied(self) -> float:
+        """The voltage at the motor now."""
+        while self.pending and self.pending[0][0] <= self.t + 1e-12:
+            self.level = self.pending.pop(0)[1]
+        if self.watchdog is not None and not self.expired and self.t - self.watchdog[1] > self.watchdog[0]:
+            self.expired = True  # as a hardware watchdog: 0 V and the amplifier off until reopened
+            self.enabled = False
+        if not self.enabled or self.expired:
+            return 0.0
+        return max(-self.amplifier, min(self.amplifier, self.level))
+
+    def advance(self, until: float) -> None:
+        """Step the plant to ``until`` (whole steps of ``step``), logging each step."""
+        while self.t + 0.5 * self.step <= until:
+            volts = self.applied()
+            self.theta0, self.theta1, self.current = self.session.step([volts], self.step)
+            self._record(volts)
+            self.t += self.step
+
+    def _record(self, volts: float) -> None:
+        if self.rows == len(self.log):
+            import numpy as np
+
+            if self.rows >= self.capacity:
+                return  # a day-long run keeps its first rows: the log is bounded
+            self.log = np.vstack([self.log, np.zeros((min(len(self.log), self.capacity - self.rows),
+                                                     len(LOG_COLUMNS)))])
+        self.log[self.rows] = (self.t, self.written, volts, float(self.enabled), float(self.expired),
+                               self.theta0, self.theta1, self.current)
+        self.rows += 1
+
+    def save_log(self, path: Path) -> None:
+        from furuta_cosim.files import write_text
+
+        lines = [",".join(LOG_COLUMNS)] + [",".join(repr(float(v)) for v in row) for row in self.log[:self.rows]]
+        write_text(path, "\n".join(lines) + "\n")
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def read_board_log(path: Path) -> dict:
+    """A virtual board's own log, by column (numpy arrays)."""
+    import numpy as np
+
+    table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {name: table[:, k] for k, name in enumerate(LOG_COLUMNS)}
+
+
+class VirtualBoard(Board):
+    name = "virtual"
+    description = ("the rig stand-in: a plant FMU stepped in real time in a process of its own, "
+                   "read and driven as a QUBE's board (options: fast, to run it as fast as it can)")
+    has_current = True
+
+    def __init__(self, plant, *, paced: bool = True, log: Path | None = None, amplifier: float = AMPLIFIER,
+                 delay: float = DELAY, step: float = STEP, seed: int = 0, overrides: dict | None = None,
+                 hanging: bool = True):
+        from furuta_cosim.fmu.exporter import build_fmu
+
+        self.plant = plant
+        self.paced = paced
+        self.log_path = Path(log) if log is not None else None
+        start = dict(plant.parameters)
+        start.update(overrides or {})
+        if hanging:  # a real pendulum starts hanging down, at rest
+            start.setdefault("theta1_start", math.pi)
+        self.arguments = (str(build_fmu(plant)), start, dict(plant.sensors))
+        self.settings = {"amplifier": amplifier, "delay": delay, "step": step, "seed": seed}
+        self.rig: VirtualRig | None = None
+        self._process = self._shared = None
+
+    @classmethod
+    def from_argument(cls, argument: str, plant=None, **options) -> "VirtualBoard":
+        if argument not in ("", "fast"):
+            raise ConfigError([f"board: virtual takes no option but 'fast' (virtual:fast runs as fast "
+                               f"as it can), got {argument!r}"])
+        if plant is None:
+            raise ConfigError(["board: the virtual board runs a plant: give `plant`"])
+        return cls(plant, paced=argument != "fast" and options.pop("paced", True), **options)
+
+    # -- the interface ---------------------------------------------------------------------
+    def open(self) -> None:
+        if not self.paced:
+            self.rig = VirtualRig(*self.arguments, **self.settings)
+            return
+        context = multiprocessing.get_context("spawn")
+        self._shared = context.Array("d", _SLOTS, lock=False)
+        self._shared[_T0] = time.perf_counter()
+        self._process = context.Process(target=_serve, args=(self.arguments, self.settings, self._shared,
+                                                             str(self.log_path) if self.log_path else "",
+                                                             os.getpid()), daemon=False)
+        self._process.start()
+        deadline = time.monotonic() + 60
+        while self._shared[_READY] == 0.0:
+            if not self._process.is_alive() or time.monotonic() > deadline:
+                raise ConfigError([f"board: the virtual board did not start (exit code {self._process.exitcode})"])
+            time.sleep(0.005)
+
+    def zero_encoders(self) -> None:
+        if self.rig is not None:
+            self.rig.zero_encoders()
+        else:
+            self._signal(_ZERO)
+
+    def read(self) -> Reading:
+        if self.rig is not None:
+            return self.rig.reading()
+        shared = self._shared
+        while True:  # a seqlock: retried while the board writes a reading
+            before = shared[_SEQ]
+            values = (shared[_ARM_COUNTS], shared[_PENDULUM_COUNTS], shared[_CURRENT])
+            if before == shared[_SEQ] and int(before) % 2 == 0:
+                return Reading(int(values[0]), int(values[1]), values[2])
+
+    def write(self, volts: float) -> None:
+        if self.rig is not None:
+            self.rig.write(volts)
+        elif self._shared is not None:
+            self._shared[_VOLTS] = volts
+            self._signal(_WRITES)
+
+    def enable(self) -> None:
+        self._set_enabled(1.0)
+
+    def disable(self) -> None:
+        self._set_enabled(0.0)
+
+    def _set_enabled(self, value: float) -> None:
+        if self.rig is not None:
+            self.rig.enabled = bool(value) and not self.rig.expired
+        elif self._shared is not None:
+            self._shared[_ENABLE] = value
+
+    def arm_watchdog(self, timeout: float) -> None:
+        if self.rig is not None:
+            self.rig.arm(timeout)
+        else:
+            self._shared[_TIMEOUT] = timeout
+            self._signal(_ARMED)
+
+    def reload_watchdog(self) -> bool:
+        if self.rig is not None:
+            return self.rig.reload()
+        self._signal(_RELOADS)
+        return self._shared[_EXPIRED] == 0.0
+
+    def stop_watchdog(self) -> None:
+        if self.rig is not None:
+            self.rig.watchdog = None
+        elif self._shared is not None:
+            self._shared[_TIMEOUT] = 0.0
+            self._signal(_ARMED)
+
+    def close(self) -> None:
+        if self.rig is not None:
+            # the hardware goes on after the runner stops: its log shows where the stop left it
+            self.rig.advance(self.rig.t + self.rig.delay + 2 * self.rig.step)
+            if self.log_path is not None:
+                self.rig.save_log(self.log_path)
+            self.rig.close()
+            self.rig = None
+        if self._process is not None:
+            self._shared[_STOP] = 1.0
+            self._process.join(timeout=30)
+            if self._process.is_alive():
+                self._process.kill()
+            self._process = None
+
+    def clock(self) -> Clock:
+        return Clock() if self.rig is None else _SimulatedClock(self.rig)
+
+    def _signal(self, slot: int) -> None:
+        self._shared[slot] += 1.0
+
+
+class _SimulatedClock(Clock):
+    """The virtual rig's own time: waiting for a deadline steps the rig to it."""
+
+    def __init__(self, rig: VirtualRig):
+        self.rig = rig
+
+    def now(self) -> float:
+        return self.rig.t
+
+    def wait_until(self, deadline: float) -> float:
+        self.rig.advance(deadline)
+        return max(self.rig.t, deadline)
+
+
+# the shared slots between the runner and the board's process (one writer each); a signal
+# slot counts up, and the board acts once per new count
+(_T0, _READY, _STOP, _VOLTS, _WRITES, _ENABLE, _TIMEOUT, _ARMED, _RELOADS, _ZERO, _EXPIRED, _SEQ,
+ _ARM_COUNTS, _PENDULUM_COUNTS, _CURRENT) = range(15)
+_SLOTS = 16
+_GRACE = 0.5  # s the board runs on after its watchdog expired with its runner gone
+
+
+def _serve(arguments, settings, shared, log: str, parent: int) -> None:
+    """The board's process: the rig in real time until told to stop, or until its runner is
+    gone and the watchdog has held it at 0 V for a while; then its log."""
+    rig = VirtualRig(*arguments, **settings)
+    seen = {slot: 0.0 for slot in (_WRITES, _ARMED, _RELOADS, _ZERO)}
+    t0 = shared[_T0]
+    clock = Clock()
+    orphaned_at = None
+    try:
+        publish(rig, shared)
+        shared[_READY] = 1.0
+        k, stop_at = 0, None
+        while stop_at is None or rig.t < stop_at:
+            k += 1
+            now = clock.wait_until(t0 + k * rig.step) - t0
+            if stop_at is None and shared[_STOP] != 0.0:  # told to stop: what the runner wrote last, then
+                stop_at = now + rig.delay + 2 * rig.step  # long enough for the log to show it applied
+            if shared[_ZERO] != seen[_ZERO]:
+                seen[_ZERO] = shared[_ZERO]
+                rig.zero_encoders()
+            if shared[_ARMED] != seen[_ARMED]:
+                seen[_ARMED] = shared[_ARMED]
+                rig.watchdog = (shared[_TIMEOUT], rig.t) if shared[_TIMEOUT] > 0 else None
+            if shared[_RELOADS] != seen[_RELOADS]:
+                seen[_RELOADS] = shared[_RELOADS]
+                rig.reload()
+            if shared[_WRITES] != seen[_WRITES]:
+                seen[_WRITES] = shared[_WRITES]
+                rig.write(shared[_VOLTS])
+            rig.enabled = shared[_ENABLE] == 1.0 and not rig.expired
+            rig.advance(now)
+            shared[_EXPIRED] = float(rig.expired)
+            publish(rig, shared)
+            if os.getppid() != parent:  # the runner is gone (killed): the watchdog is all that is left
+                orphaned_at = orphaned_at if orphaned_at is not None else rig.t
+                if rig.expired or rig.watchdog is None:
+                    if rig.t - orphaned_at > _GRACE:
+                        break
+    finally:
+        if log:
+            rig.save_log(Path(log))
+        rig.close()
+
+
+def publish(rig: VirtualRig, shared) -> None:
+    reading = rig.reading()
+    shared[_SEQ] += 1.0  # odd: being written
+    shared[_ARM_COUNTS], shared[_PENDULUM_COUNTS], shared[_CURRENT] = reading.arm, reading.pendulum, reading.current
+    shared[_SEQ] += 1.0
