@@ -1,0 +1,302 @@
+"""The loop to the rig on the virtual board (and the Quanser adapter on a fake of its API): a
+swing-up caught and balanced, every trip of the supervisor, every way a run ends leaving the
+board at 0 V with the amplifier off, the logs every command reads."""
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.fmu.plants import load_plant
+from furuta_cosim.rig.board import BOARDS, board_for
+from furuta_cosim.rig.runner import run_rig
+from furuta_cosim.rig.supervisor import Limits
+from furuta_cosim.rig.virtual import VirtualBoard, read_board_log
+
+from helpers import one_line, run_cli
+
+CLI = [sys.executable, "-m", "furuta_cosim.cli"]
+FAKE = Path(__file__).parent / "fake_quanser"
+QUBE = load_plant("qube-servo-3")
+
+
+def _board(tmp_path, plant=QUBE, **options):
+    return VirtualBoard(plant, paced=False, log=tmp_path / "run" / "board.csv", **options)
+
+
+def _left_safe(folder: Path) -> None:
+    """The board's own log: the last voltage it applied is 0 and the amplifier is off."""
+    board = read_board_log(folder / "board.csv")
+    assert board["V_applied"][-1] == 0.0 and board["enabled"][-1] == 0.0
+
+
+def test_a_swing_up_is_caught_and_balanced_and_every_file_is_written(tmp_path, capsys):
+    out = tmp_path / "run"
+    code, stdout, err = run_cli(capsys, "rig", "run", "swingup-qube", "--board", "virtual:fast",
+                                "--duration", "3", "-o", str(out), "--json")
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["status"] == "finished" and summary["samples"] == 1500
+    assert 0.3 < summary["swingup"]["caught_at"] < 1.0 and summary["swingup"]["upright_at"] < 1.5
+    assert summary["swingup"]["falls"] == 0 and summary["peaks"]["theta0"] < 2.0
+    assert summary["peaks"]["V"] <= 10.0  # the plant file's limit
+    assert sorted(summary["files"]) == ["board.csv", "controllers", "experiment.yaml", "log.csv",
+                                        "summary.json", "summary.md"]
+    _left_safe(out)
+    # the log is an experiment file every command reads; the applied voltage is its input
+    from furuta_cosim.identify.experiment import load_experiment
+
+    experiment = load_experiment(out / "experiment.yaml")
+    assert experiment.samples == 1500 and set(experiment.outputs) == {"theta0", "theta1", "i"}
+    log = np.loadtxt(out / "log.csv", delimiter=",", skiprows=1)
+    assert np.allclose(experiment.inputs["V"], log[:, 5])
+    # the hardware saw what the runner wrote, a millisecond later (the transport delay)
+    board = read_board_log(out / "board.csv")
+    assert np.max(np.abs(board["V_applied"])) == pytest.approx(summary["peaks"]["V"], rel=1e-12)
+    # the controller files it ran are in the folder, and run again as they ran
+    code, _, err = run_cli(capsys, "rig", "run", str(out / "controllers" / "swingup-qube.yaml"),
+                           "--board", "virtual:fast", "--duration", "3", "-o", str(tmp_path / "again"))
+    assert code == 0, err
+    assert np.array_equal(np.loadtxt(tmp_path / "again" / "log.csv", delimiter=",", skiprows=1)[:, 5], log[:, 5])
+
+
+def _holding(folder: Path) -> tuple[Path, Path]:
+    """A controller that holds the arm at 0.5 rad against the encoder cable (a steady 0.2 V or
+    so, never near a limit), and a 20 s scenario that asks it to: what a run killed midway was
+    driving."""
+    controller = folder / "hold-arm.yaml"
+    controller.write_text("name: hold-arm\ntype: static\ntime: discrete\nperiod: 0.002\n"
+                          "K: [2.0, 0.2, 0.0, 0.0, 0.0]\nprefilter: {output: theta0, F: 2.0}\n")
+    scenario = folder / "hold.yaml"
+    scenario.write_text("name: hold\nplant: {model: qube-servo-3, initial: {theta1: pi}}\n"
+                        "timing: {duration: 20.0, control_period: 0.002}\n"
+                        "reference: {output: theta0, signal: {type: constant, value: 0.5}}\n"
+                        "controllers: [hold-arm.yaml]\n")
+    return controller, scenario
+
+
+@pytest.mark.slow
+def test_in_real_time_every_sample_is_logged_with_its_timing(tmp_path):
+    """On the board's own process, in real time. On a loaded machine a sample may start late
+    (and the supervisor stop the run for it): whatever happens, every sample run is logged with
+    when it started and how long it took, and the rig is left safe."""
+    controller, scenario = _holding(tmp_path)
+    summary = run_rig(controller, VirtualBoard(QUBE, log=tmp_path / "run" / "board.csv"), QUBE,
+                      tmp_path / "run", scenario=scenario.with_name("hold.yaml"))
+    assert summary["status"] in ("finished", "tripped"), summary["reason"]
+    log = np.loadtxt(tmp_path / "run" / "log.csv", delimiter=",", skiprows=1)
+    assert len(log) == summary["samples"] and np.all(log[:, 1] >= 0) and np.all(log[:, 2] > 0)
+    assert summary["timing"]["late_ms"]["max"] == pytest.approx(1000 * np.max(log[:, 1]), rel=1e-9)
+    if summary["status"] == "finished":
+        assert 0.3 < log[-1, 6] < 0.6  # it held the arm near where it was asked to (the cable pulls back)
+    _left_safe(tmp_path / "run")
+
+
+@pytest.mark.parametrize("limits, limit, words", [
+    ({"theta0": 0.2}, "theta0", "the arm reached"),
+    ({"current": 0.05}, "current", "the motor current reached"),
+])
+def test_a_broken_limit_trips_the_run_and_leaves_the_rig_safe(tmp_path, limits, limit, words):
+    lines = []
+    summary = run_rig("swingup-qube", _board(tmp_path), QUBE, tmp_path / "run", duration=3.0,
+                      limits=Limits(voltage=10.0, **limits), log=lines.append)
+    assert summary["status"] == "tripped" and summary["code"] == 1 and words in summary["reason"]
+    assert summary["samples"] < 1500 and any(line.startswith("stopped: " + words) for line in lines)
+    log = np.loadtxt(tmp_path / "run" / "log.csv", delimiter=",", skiprows=1)
+    assert len(log) == summary["samples"]  # the log is complete up to the tripping sample
+    _left_safe(tmp_path / "run")
+
+
+def test_a_stalled_motor_trips_the_run(tmp_path):
+    blocked = tmp_path / "blocked.yaml"
+    blocked.write_text("model: furuta\nextends: qube-servo-3\nparameters: {I_a: 1000.0}\n")
+    plant = load_plant(blocked)
+    summary = run_rig("swingup-qube", _board(tmp_path, plant), plant, tmp_path / "run", duration=3.0,
+                      limits=Limits(voltage=10.0, stall_voltage=0.2, stall_seconds=0.5))
+    assert summary["status"] == "tripped" and "a stalled motor" in summary["reason"]
+    assert summary["seconds"] == pytest.approx(0.5, abs=0.02)
+    _left_safe(tmp_path / "run")
+
+
+class _LateOnce(VirtualBoard):
+    """A board whose clock wakes 20 ms late at one sample (a loop preempted)."""
+
+    def clock(self):
+        inner = super().clock()
+
+        class Late:
+            calls = 0
+
+            def now(self):
+                return inner.now()
+
+            def wait_until(self, deadline):
+                Late.calls += 1
+                return inner.wait_until(deadline + (0.02 if Late.calls == 100 else 0.0))
+
+        return Late()
+
+
+def test_a_missed_deadline_trips_the_run(tmp_path):
+    board = _LateOnce(QUBE, paced=False, log=tmp_path / "run" / "board.csv")
+    summary = run_rig("swingup-qube", board, QUBE, tmp_path / "run", duration=3.0)
+    assert summary["status"] == "tripped" and "ms late" in summary["reason"] and summary["samples"] == 100
+    _left_safe(tmp_path / "run")
+
+
+class _Unplugged(VirtualBoard):
+    """A board whose read fails at sample 300 with ``error``."""
+
+    error: BaseException = OSError(5, "the USB device went away")
+
+    def read(self):
+        self.reads = getattr(self, "reads", 0) + 1
+        if self.reads == 300:
+            raise self.error
+        return super().read()
+
+
+@pytest.mark.parametrize("error, status", [(OSError(5, "the USB device went away"), "failed"),
+                                           (KeyboardInterrupt(), "interrupted")])
+def test_an_exception_or_ctrl_c_leaves_the_rig_safe_with_its_log(tmp_path, error, status):
+    board = _Unplugged(QUBE, paced=False, log=tmp_path / "run" / "board.csv")
+    board.error = error
+    with pytest.raises(type(error)):
+        run_rig("swingup-qube", board, QUBE, tmp_path / "run", duration=3.0)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["status"] == status and summary["samples"] == 299
+    assert len(np.loadtxt(tmp_path / "run" / "log.csv", delimiter=",", skiprows=1)) == 299
+    _left_safe(tmp_path / "run")
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_run_safely_with_exit_143(tmp_path):
+    controller, scenario = _holding(tmp_path)
+    out = tmp_path / "run"
+    process = subprocess.Popen(CLI + ["rig", "run", str(controller), "--scenario", str(scenario), "-o", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 143, err
+    assert "stopped: SIGTERM at t = " in err and "the rig is at 0 V with the amplifier off" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "terminated" and summary["code"] == 143
+    _left_safe(out)
+
+
+@pytest.mark.slow
+def test_a_runner_killed_with_minus_9_is_stopped_by_the_boards_watchdog(tmp_path):
+    """Nothing of the runner is left to stop the motor: the board's watchdog drives it to 0 V
+    within its timeout of the last reload, as a real board's does."""
+    controller, scenario = _holding(tmp_path)
+    out = tmp_path / "run"
+    process = subprocess.Popen(CLI + ["rig", "run", str(controller), "--scenario", str(scenario), "-o", str(out),
+                                      "--watchdog", "0.1"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(4.0)
+    process.kill()
+    process.wait()
+    deadline = time.monotonic() + 60
+    while not (out / "board.csv").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)  # the board process writes its log once it has held 0 V a while
+    board = read_board_log(out / "board.csv")
+    t, written = board["t"], board["V_written"]
+    last_write = t[np.nonzero(np.diff(written) != 0)[0][-1] + 1]
+    assert last_write > 1.0 and abs(written[-1]) > 0.05  # it was driving the motor when it was killed
+    after = t > last_write + 0.1 + 0.001 + 0.0005  # timeout, transport delay, one plant step
+    assert np.all(board["V_applied"][after] == 0.0) and np.all(board["watchdog_expired"][after] == 1.0)
+    assert not (out / "summary.json").exists()  # the runner never got to write it
+
+
+def test_the_quanser_board_drives_the_hil_api_as_its_documentation_says(tmp_path, monkeypatch):
+    sys.path.insert(0, str(FAKE))
+    try:
+        from quanser import hardware
+    finally:
+        sys.path.remove(str(FAKE))
+    hardware.CALLS.clear()
+    board = board_for("quanser:qube_servo3_usb@0", QUBE, module=hardware)
+    summary = run_rig("swingup-qube", board, QUBE, tmp_path / "run", duration=2.0)
+    assert summary["status"] == "finished" and summary["swingup"]["upright_at"] < 1.5
+    names = [call[0] for call in hardware.CALLS]
+    # the output at 0 V and the amplifier off before anything, the watchdog told to bring them
+    # there, the counts zeroed, the watchdog started before the amplifier is enabled
+    assert names[:6] == ["open", "write_analog", "write_digital", "watchdog_set_analog_expiration_state",
+                         "watchdog_set_digital_expiration_state", "set_encoder_counts"]
+    assert hardware.CALLS[1][1:] == ([0], 1, [0.0]) and hardware.CALLS[2][1:] == ([0], 1, [0])
+    assert hardware.CALLS[3][3] == [0.0] and hardware.CALLS[4][3] == [0]
+    start, enable = names.index("watchdog_start"), names.index("write_digital", 3)
+    assert start < enable and hardware.CALLS[enable][3] == [1]
+    # the end: 0 V, the amplifier off, the watchdog stopped, the board closed
+    assert names[-4:] == ["write_analog", "write_digital", "watchdog_stop", "close"]
+    assert hardware.CALLS[-4][3] == [0.0] and hardware.CALLS[-3][3] == [0]
+
+
+def test_a_quanser_board_that_cannot_be_opened_is_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(FAKE))
+    from quanser import hardware
+
+    monkeypatch.setattr(hardware.HIL, "fail_open", -1073)
+    line = one_line(capsys, "rig", "run", "swingup-qube", "--board", "quanser", "--duration", "1",
+                    "-o", str(tmp_path / "run"))
+    assert line == "error: --board: quanser qube_servo3_usb@0: open: no such board is connected"
+    assert not (tmp_path / "run").exists()  # nothing ran: no run folder
+
+
+def test_without_the_sdk_the_quanser_board_says_how_to_get_it(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "quanser", None)  # not installed
+    line = one_line(capsys, "rig", "run", "swingup-qube", "--board", "quanser", "--duration", "1",
+                    "-o", str(tmp_path / "run"))
+    assert "Quanser's Python HIL API is not installed" in line
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--board", "arduino"], "board: expected one of"),
+    (["--board", "virtual:turbo"], "virtual takes no option but 'fast'"),
+    (["--board", "quanser:qube_servo9_usb"], "expected a board type of qube_servo3_usb"),
+    (["--duration", "-1"], "duration: expected seconds in (0, 3600]"),
+    (["--duration", "1", "--watchdog", "0"], "watchdog: expected a number in [0.005, 10]"),
+])
+def test_bad_rig_options_are_one_line(tmp_path, capsys, argv, expected):
+    argv = argv if "--duration" in argv else argv + ["--duration", "1"]
+    line = one_line(capsys, "rig", "run", "swingup-qube", *argv, "-o", str(tmp_path / "run"))
+    assert expected in line and "--" in line or expected in line, line
+    assert not (tmp_path / "run").exists()
+
+
+def test_every_board_is_registered_with_a_description():
+    assert {"virtual", "quanser"} <= set(BOARDS)
+    assert all(board.description for board in BOARDS.values())
+
+
+def test_a_rig_log_is_a_regression_baseline_of_the_model(tmp_path, capsys):
+    out = tmp_path / "run"
+    run_rig("swingup-qube", _board(tmp_path), QUBE, out, duration=1.0)
+    check = tmp_path / "check.yaml"
+    check.write_text("rig_check: swingup-log\nexperiment: run/experiment.yaml\nplant: qube-servo-3\n"
+                     "seconds: 0.5\ntolerances: {theta0: 0.05, theta1: 0.1}\n")
+    code, out_text, err = run_cli(capsys, "regress", str(check))
+    assert code == 0 and "swingup-log" in out_text and "pass" in out_text, out_text + err
+    # a model that no longer predicts the rig: another pendulum inertia
+    other = tmp_path / "heavier.yaml"
+    other.write_text("model: furuta\nextends: qube-servo-3\nparameters: {I_p: 6.6e-5}\n")
+    check.write_text(check.read_text().replace("plant: qube-servo-3", f"plant: {other}"))
+    code, out_text, _ = run_cli(capsys, "regress", str(check))
+    assert code == 1 and "REGRESSION swingup-log / replay: theta1 RMS: expected <= 0.1" in out_text
+
+
+def test_a_rig_run_refuses_a_folder_that_holds_files(tmp_path, capsys):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "mine.txt").write_text("x")
+    line = one_line(capsys, "rig", "run", "swingup-qube", "--board", "virtual:fast", "--duration", "1",
+                    "-o", str(tmp_path / "run"))
+    assert "holds files already" in line
