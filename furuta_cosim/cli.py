@@ -520,6 +520,23 @@ def cmd_rig_run(args) -> int:
     return summary["code"]
 
 
+def cmd_rig_home(args) -> int:
+    from pathlib import Path
+
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.files import output_folder
+    from furuta_cosim.rig.board import board_for
+    from furuta_cosim.rig.runner import home, summary_text
+
+    plant = load_plant(args.plant)
+    out = output_folder(Path(args.output or Path("runs") / "rig" / "home"))
+    board = board_for(args.board, plant, log=out / "board.csv", seed=args.seed)
+    summary = home(board, plant, out, timeout=args.timeout, log=lambda line: print(line, file=sys.stderr))
+    print(summary_text(summary), end="")
+    print(f"run folder: {out}")
+    return summary["code"]
+
+
 def cmd_list(args) -> int:
     from furuta_cosim.shipped import listing
 
@@ -735,6 +752,13 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", metavar="DIR", help="run folder (default runs/rig/<controller>)")
     q.add_argument("--json", action="store_true", help="print summary.json")
     q.set_defaults(handler=cmd_rig_run)
+    q = rigs.add_parser("home", help="bring the rig to rest: the pendulum hanging still, the arm home")
+    q.add_argument("--board", default="virtual", metavar="NAME[:OPTIONS]", help="as for rig run (default virtual)")
+    q.add_argument("--plant", default="qube-servo-3", help="the rig's plant file (default qube-servo-3)")
+    q.add_argument("--timeout", type=float, default=20.0, help="give up after this many seconds (default 20)")
+    q.add_argument("--seed", type=int, default=0, help="the virtual board's sensor noise (default 0)")
+    q.add_argument("-o", "--output", metavar="DIR", help="run folder (default runs/rig/home)")
+    q.set_defaults(handler=cmd_rig_home)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")
@@ -766,7 +790,8 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "overrides": "--params", "run_dir": "-o", "output": "-o", "controllers": "--controller",
          "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit",
          "model": "--model", "duration": "--duration", "scenario": "--scenario",
-         "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board"}
+         "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board",
+         "timeout": "--timeout"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

@@ -300,3 +300,35 @@ def test_a_rig_run_refuses_a_folder_that_holds_files(tmp_path, capsys):
     line = one_line(capsys, "rig", "run", "swingup-qube", "--board", "virtual:fast", "--duration", "1",
                     "-o", str(tmp_path / "run"))
     assert "holds files already" in line
+
+
+@pytest.mark.parametrize("theta1, theta0", [(math.pi - 1.0, 0.5), (0.3, 0.0)])
+def test_homing_brings_a_swinging_rig_to_rest(tmp_path, theta1, theta0):
+    """From the pendulum 1 rad off hanging with the arm at 0.5 rad, or falling from 0.3 rad off
+    upright: at rest (the pendulum hanging still, the arm home) within 5 s, at 2 V at most."""
+    from furuta_cosim.rig.runner import home
+
+    board = VirtualBoard(QUBE, paced=False, log=tmp_path / "home" / "board.csv",
+                         overrides={"theta1_start": theta1, "theta0_start": theta0})
+    summary = home(board, QUBE, tmp_path / "home", timeout=10.0)
+    assert summary["status"] == "finished" and summary["seconds"] < 5.0 and summary["peaks"]["V"] <= 2.0
+    log = np.loadtxt(tmp_path / "home" / "log.csv", delimiter=",", skiprows=1)
+    assert abs(log[-1, 6]) < 0.05 and abs(log[-1, 7] - math.pi) < 0.05
+    _left_safe(tmp_path / "home")
+
+
+def test_identify_fits_a_rig_run_log(tmp_path, capsys):
+    """A rig whose motor is not the model's (R_a 9.5 ohm against 7.5): its swing-up log, the
+    voltage applied as the input, fitted as any log is."""
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("model: furuta\nextends: qube-servo-3\nparameters: {R_a: 9.5}\n")
+    true = load_plant(rig)
+    run_rig("swingup-qube", VirtualBoard(true, paced=False), QUBE, tmp_path / "run", duration=0.5)
+    spec = tmp_path / "fit.yaml"
+    spec.write_text("plant: qube-servo-3\nexperiments: [run/experiment.yaml]\nfree:\n"
+                    "  R_a: {bounds: [1.0, 30.0]}\n")
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1")
+    assert code == 0, err
+    fitted = json.loads((tmp_path / "fit" / "fit.json").read_text())["parameters"]["R_a"]
+    lo, hi = fitted["interval"]
+    assert lo <= 9.5 <= hi and abs(fitted["value"] - 9.5) < 0.2, fitted

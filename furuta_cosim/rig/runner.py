@@ -62,6 +62,8 @@ def controller_for(controller, period: float | None = None, scenario=None):
         prepared = prepare(load_scenario(scenario))
         compiled = compile_controller(prepared, controller, key="controller")
         return compiled.cfile, compiled.runtime, prepared.t, prepared.rbar, prepared.control_period
+    if isinstance(controller, Homing):
+        return None, controller, None, None, controller.period
     cfile = controller if not isinstance(controller, (str, Path)) else load_controller(controller)
     period = period or cfile.period or cfile.controller.period
     if not period:
@@ -72,6 +74,42 @@ def controller_for(controller, period: float | None = None, scenario=None):
     if cfile.swingup is not None:
         runtime = SwingUpRuntime(runtime, cfile.swingup)
     return cfile, runtime, None, None, period
+
+
+class Homing:
+    """The damp-down that brings a rig to rest between runs, as a runtime controller: the swing-up's
+    energy law reversed (:class:`~furuta_cosim.swingup.DampDown`: the pendulum's energy taken
+    out, the arm pulled home); ``finished`` once the rig has been at rest for ``hold`` seconds."""
+
+    n_xc = 0
+    name = "home"
+
+    def __init__(self, law, period: float, hold: float = 0.5):
+        self.law, self.period, self.hold = law, period, hold
+        self.reset()
+
+    def reset(self) -> None:
+        self.rest, self.finished = 0.0, False
+
+    def state(self) -> list:
+        return []
+
+    def control(self, x, rbar: float) -> float:
+        self.rest = self.rest + self.period if self.law.done(x) else 0.0
+        self.finished = self.rest >= self.hold
+        return 0.0 if self.finished else self.law.control(x)
+
+
+def home(board: Board, plant, output: str | Path, *, timeout: float = 20.0, period: float = 0.002,
+         log: Callable[[str], None] = lambda line: None) -> dict:
+    """Bring the rig to rest, the pendulum hanging still and the arm home (the damp-down on
+    ``plant``'s pendulum), and write a run folder of it (as :func:`run_rig`); the board's
+    counts go on from before. Ends ``finished`` once at rest, ``tripped`` if the supervisor
+    stopped it, or ``timeout`` (exit code 1) when it was not at rest after ``timeout`` seconds."""
+    from furuta_cosim.swingup import DampDown, pendulum
+
+    return run_rig(Homing(DampDown(*pendulum(plant.parameters)), period), board, plant, output,
+                   duration=timeout, zero=False, log=log)
 
 
 class _Rates:
@@ -92,7 +130,7 @@ class _Rates:
 
 def run_rig(controller, board: Board, plant, output: str | Path, *, duration: float | None = None,
             scenario=None, watchdog: float = WATCHDOG, rate_filter: float = RATE_FILTER,
-            limits: Limits | None = None, log: Callable[[str], None] = lambda line: None,
+            limits: Limits | None = None, zero: bool = True, log: Callable[[str], None] = lambda line: None,
             progress: Callable[[float, float], None] | None = None) -> dict:
     """Run ``controller`` on ``board`` and write the run folder ``output`` (module docstring).
 
@@ -117,6 +155,9 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         The cutoff of the rates' filtered difference (Hz).
     limits : Limits, optional
         Instead of the plant file's.
+    zero : bool
+        Zero the encoders first: the rig must be at rest, the arm at its zero and the pendulum
+        hanging (a run from rest); without, the board's counts go on from before (homing).
     log : callable
         Takes the lines a run says (a warning, why it stopped).
     progress : callable, optional
@@ -164,7 +205,8 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     make_folder(out, root=True)
     started_wall = time.time()
     try:
-        board.zero_encoders()
+        if zero:
+            board.zero_encoders()
         board.write(0.0)
         board.arm_watchdog(watchdog)
         board.enable()
@@ -193,9 +235,14 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
                 raise Trip("watchdog", f"the board's watchdog had expired at t = {k * period:.4f} s "
                                        "(the loop stalled longer than its timeout)")
             rows[k, 2] = clock.now() - woke
+            if getattr(runtime, "finished", False):
+                reason = f"at rest after {k * period:.3f} s"
+                break
             if progress and k * period - shown >= 1.0:
                 shown = k * period
                 progress(shown, steps * period)
+        if isinstance(runtime, Homing) and not runtime.finished:
+            status, code, reason = "timeout", TRIPPED, f"not at rest after {steps * period:g} s"
     except Trip as trip:
         status, code, reason = "tripped", TRIPPED, trip.reason
         if done and trip.limit != "deadline":
@@ -227,18 +274,19 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
     from furuta_cosim.metrics import regulation_settling
     from furuta_cosim.swingup import wrap
 
-    kept = _keep_controllers(cfile, out)
+    kept = _keep_controllers(cfile, out) if cfile is not None else None
+    name = cfile.name if cfile is not None else runtime.name
     lines = [",".join(COLUMNS)] + [",".join(_cell(v) for v in row) for row in rows]
     write_text(out / "log.csv", "\n".join(lines) + "\n")
     counts = float(plant.sensors.get("encoder_counts", 2048))
     experiment = {
-        "name": "rig-run", "description": f"{cfile.name} on the {board.name} board, {status}: {reason}",
+        "name": "rig-run", "description": f"{name} on the {board.name} board, {status}: {reason}",
         "data": "log.csv", "header": 1, "columns": list(COLUMNS), "time": "t",
         "inputs": {"V": {"column": "V", "unit": "V"}},
         "outputs": {"theta0": {"column": "theta0", "unit": "rad", "quantum": 2 * math.pi / counts},
                     "theta1": {"column": "theta1", "unit": "rad", "quantum": 2 * math.pi / counts}},
         "start": {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
-        "rig": {"board": board.name, "controller": kept, "period": period, "status": status},
+        "rig": {"board": board.name, "controller": kept or name, "period": period, "status": status},
     }
     if board.has_current:
         experiment["outputs"]["i"] = {"column": "i", "unit": "A",
@@ -265,7 +313,7 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
     if limits.voltage is None:
         warnings.append("the rig's plant file states no voltage limit: commands went unclipped")
     summary = {"status": status, "code": code, "reason": reason, "board": board.name,
-               "plant": str(plant.path), "controller": cfile.name, "scenario": str(scenario) if scenario else None,
+               "plant": str(plant.path), "controller": name, "scenario": str(scenario) if scenario else None,
                "period": period, "samples": int(len(rows)), "seconds": float(len(rows) * period),
                "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started_wall)),
                "safe": not failed, "safe_failures": failed, "timing": timing, "warnings": warnings,

@@ -53,7 +53,9 @@ class VirtualRig:
         self.amplifier, self.delay, self.step = float(amplifier), float(delay), float(step)
         self.rng = np.random.default_rng(seed)
         self.t = 0.0
-        self.zero = (self.theta0, self.theta1)
+        # the counts as a board powered up with the rig at rest counts them: from the arm's zero
+        # and the pendulum hanging (a runner zeroes them again when it starts a run)
+        self.zero = (0.0, math.pi)
         self.pending: list[tuple[float, float]] = []   # (when it reaches the motor, volts)
         self.written = 0.0      # the last command written
         self.level = 0.0        # what the amplifier is driving toward (after the delay)
