@@ -115,30 +115,37 @@ class SwingUpRuntime:
     """The swing-up and catch around a runtime balance controller (the same calls as
     :class:`~furuta_cosim.cosim.runtime.RuntimeController`: ``control(x, rbar)``, ``reset()``,
     ``state()``): states are the balance controller's, then the mode (0 swinging up, 1
-    balancing). Runs on the plant's states (simulation) or on estimated ones (a rig)."""
+    balancing). Runs on the plant's states (simulation) or on estimated ones (a rig). With
+    ``delay=1`` every command is applied a sample late (the balance controller is then built
+    without a delay of its own)."""
 
     native = False  # the sample loop in C runs linear controllers only
 
-    def __init__(self, balance, settings: SwingUp):
-        self.balance, self.settings = balance, settings
+    def __init__(self, balance, settings: SwingUp, delay: int = 0):
+        self.balance, self.settings, self.delay = balance, settings, delay
         self.n_xc = balance.n_xc + 1
-        self.mode = SWINGUP
-        self.switches: list[tuple[int, float]] = []  # (sample, new mode)
-        self._k = 0
+        self.reset()
 
     def __reduce__(self):
-        return (SwingUpRuntime, (self.balance, self.settings))
+        return (SwingUpRuntime, (self.balance, self.settings, self.delay))
 
     def reset(self) -> None:
         self.balance.reset()
         self.mode = SWINGUP
-        self.switches = []
+        self.switches: list[tuple[int, float]] = []  # (sample, new mode)
         self._k = 0
+        self._held = 0.0  # with delay 1: the command of the sample before
 
     def state(self) -> list[float]:
         return self.balance.state() + [self.mode]
 
     def control(self, x, rbar: float) -> float:
+        if not self.delay:
+            return self._control(x, rbar)
+        u, self._held = self._held, self._control(x, rbar)  # computed now, applied next sample
+        return u
+
+    def _control(self, x, rbar: float) -> float:
         s = self.settings
         theta1 = wrap(x[2])
         if self.mode == SWINGUP and abs(theta1) < s.catch_angle and abs(x[3]) < s.catch_rate:

@@ -108,11 +108,13 @@ def compile_controller(prepared: Prepared, controller, *, key: str | None = None
     except ConfigError as error:
         raise error.within(where) from None
     c = discretize_controller(cfile.controller, prepared.control_period)
-    runtime = RuntimeController(c, cfile.F if cfile.F is not None else 1.0, delay=prepared.scenario.delay)
-    if cfile.swingup is not None:
+    F = cfile.F if cfile.F is not None else 1.0
+    if cfile.swingup is not None:  # the delay is the swing-up's, for both its modes
         from furuta_cosim.swingup import SwingUpRuntime
 
-        runtime = SwingUpRuntime(runtime, cfile.swingup)
+        runtime = SwingUpRuntime(RuntimeController(c, F), cfile.swingup, delay=prepared.scenario.delay)
+    else:
+        runtime = RuntimeController(c, F, delay=prepared.scenario.delay)
     return Compiled(cfile, runtime)
 
 
