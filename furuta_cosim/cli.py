@@ -5,7 +5,10 @@ the same for every command: 0 success; 1 a check failed (a requirement, a regres
 that stopped early, an FMU that fails validation); 2 bad input (one line per problem naming
 the file and key, or the flag); 130 and 143 interrupted or terminated (nothing half-written);
 141 the reader of the output went away; 75 a run stopped that ``--resume`` continues. A
-warning (``WARN``: a run that never settles) is printed and does not change the code.
+warning (``WARN``: a run that never settles) is printed and does not change the code. ``rig
+run`` and ``rig home``: 0 the run went to its end (homing: came to rest), 1 the supervisor
+stopped it (a limit, a stall, a late sample) or homing timed out; the rig is left at 0 V with
+the amplifier off in every case, and the last line says why it stopped.
 """
 
 from __future__ import annotations

@@ -69,9 +69,17 @@ class Board:
         raise NotImplementedError
 
     def read(self) -> Reading:
+        """The encoders' counts and the current now."""
         raise NotImplementedError
 
     def write(self, volts: float) -> None:
+        """Drive the motor.
+
+        Parameters
+        ----------
+        volts : float
+            The voltage (the board's own range limits it further).
+        """
         raise NotImplementedError
 
     def enable(self) -> None:
@@ -79,10 +87,17 @@ class Board:
         raise NotImplementedError
 
     def disable(self) -> None:
+        """Disable the amplifier: the motor is driven by nothing."""
         raise NotImplementedError
 
     def arm_watchdog(self, timeout: float) -> None:
-        """Start the watchdog: 0 V and the amplifier disabled unless reloaded within ``timeout`` s."""
+        """Start the watchdog: 0 V and the amplifier disabled unless it is reloaded in time.
+
+        Parameters
+        ----------
+        timeout : float
+            Seconds between reloads at most.
+        """
         raise NotImplementedError
 
     def reload_watchdog(self) -> bool:
@@ -90,6 +105,7 @@ class Board:
         raise NotImplementedError
 
     def stop_watchdog(self) -> None:
+        """Stop the watchdog (and clear it, where it had expired)."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -97,6 +113,7 @@ class Board:
         raise NotImplementedError
 
     def clock(self) -> Clock:
+        """The runner's clock: the host's, or a simulated one (a virtual board run fast)."""
         return Clock()
 
     # -- what every stop ends with ---------------------------------------------------------
@@ -114,9 +131,24 @@ class Board:
 
 
 def board_for(text: str, plant=None, **options) -> Board:
-    """The board named by ``--board NAME[:OPTIONS]`` (``virtual``, ``quanser``,
-    ``quanser:qube_servo3_usb@0``); ``plant`` is the rig's plant file (its sensors and, for
-    the virtual board, the plant it runs)."""
+    """The board named as ``--board`` names it.
+
+    Parameters
+    ----------
+    text : str
+        ``NAME[:OPTIONS]``: ``virtual``, ``virtual:fast``, ``quanser``,
+        ``quanser:qube_servo3_usb@0``.
+    plant : PlantSet, optional
+        The rig's plant file (the virtual board runs it).
+    options : keyword arguments
+        Passed to the board's class: ``log`` (the virtual board's own log file), ``seed``
+        (its sensor noise), ``module`` (a stand-in for Quanser's API, in tests).
+
+    Returns
+    -------
+    Board
+        Not yet opened.
+    """
     from furuta_cosim.rig import quanser, virtual  # noqa: F401 - they register their boards
 
     name, _, argument = str(text).partition(":")

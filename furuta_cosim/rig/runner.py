@@ -104,8 +104,29 @@ def home(board: Board, plant, output: str | Path, *, timeout: float = 20.0, peri
          log: Callable[[str], None] = lambda line: None) -> dict:
     """Bring the rig to rest, the pendulum hanging still and the arm home (the damp-down on
     ``plant``'s pendulum), and write a run folder of it (as :func:`run_rig`); the board's
-    counts go on from before. Ends ``finished`` once at rest, ``tripped`` if the supervisor
-    stopped it, or ``timeout`` (exit code 1) when it was not at rest after ``timeout`` seconds."""
+    counts go on from before.
+
+    Parameters
+    ----------
+    board : Board
+        Not yet opened.
+    plant : PlantSet
+        The rig's plant file: its pendulum, limits and sensors.
+    output : path
+        The run folder (new or empty).
+    timeout : float
+        Give up (status ``timeout``, exit code 1) when not at rest after this many seconds.
+    period : float
+        The loop's period (s).
+    log : callable
+        Takes the lines the run says.
+
+    Returns
+    -------
+    dict
+        The run's summary: ``finished`` once at rest, ``tripped`` if the supervisor stopped it,
+        ``timeout``.
+    """
     from furuta_cosim.swingup import DampDown, pendulum
 
     return run_rig(Homing(DampDown(*pendulum(plant.parameters)), period), board, plant, output,

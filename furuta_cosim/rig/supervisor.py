@@ -30,7 +30,25 @@ class Trip(Exception):
 
 @dataclass(frozen=True)
 class Limits:
-    """What a run is held to; None: not checked."""
+    """What a run is held to; None: not checked.
+
+    Parameters
+    ----------
+    voltage : float, optional
+        Every command is clipped to +-voltage (V).
+    current : float, optional
+        A current beyond +-current trips the run (A).
+    theta0 : float, optional
+        An arm angle beyond +-theta0 trips it (rad).
+    stall_voltage : float, optional
+        A command of this many volts or more for ``stall_seconds`` with the arm still trips it.
+    stall_seconds : float, optional
+        See ``stall_voltage``.
+    late_periods : float
+        A sample that starts this many periods late trips it.
+    still_rate : float
+        The arm stands still below this rate (rad/s).
+    """
 
     voltage: float | None = None
     current: float | None = None
@@ -42,7 +60,15 @@ class Limits:
 
     @classmethod
     def of(cls, plant, **changes) -> "Limits":
-        """The limits of a rig's plant file."""
+        """The limits of a rig's plant file.
+
+        Parameters
+        ----------
+        plant : PlantSet
+            Its ``limits``.
+        changes : keyword arguments
+            Limits to use instead of the file's (``late_periods=10``).
+        """
         known = {k: float(v) for k, v in plant.limits.items() if k in cls.__dataclass_fields__}
         known.update(changes)
         return cls(**known)

@@ -143,6 +143,32 @@ def read_board_log(path: Path) -> dict:
 
 
 class VirtualBoard(Board):
+    """The virtual board (see the module docstring).
+
+    Parameters
+    ----------
+    plant : PlantSet
+        The plant it runs (any plant file: a fitted one, or a "true" plant unlike the model),
+        and its sensors.
+    paced : bool
+        Real time in a process of its own (True), or in the runner's process on a simulated
+        clock, as fast as it can.
+    log : path, optional
+        Where it writes its own log (``board.csv``) when it closes.
+    amplifier : float
+        The amplifier's range (V).
+    delay : float
+        From a write to the voltage at the motor (s).
+    step : float
+        The plant's step (s).
+    seed : int
+        The current sensor's noise.
+    overrides : dict, optional
+        Plant parameters and start values on top of the plant file's.
+    hanging : bool
+        Start the pendulum hanging at rest (``theta1_start`` pi) unless ``overrides`` says else.
+    """
+
     name = "virtual"
     description = ("the rig stand-in: a plant FMU stepped in real time in a process of its own, "
                    "read and driven as a QUBE's board (options: fast, to run it as fast as it can)")
