@@ -94,7 +94,7 @@ class Homing:
     def state(self) -> list:
         return []
 
-    def control(self, x, rbar: float) -> float:
+    def control(self, x, _rbar: float) -> float:
         self.rest = self.rest + self.period if self.law.done(x) else 0.0
         self.finished = self.rest >= self.hold
         return 0.0 if self.finished else self.law.control(x)
