@@ -26,6 +26,10 @@ def test_the_lab_session_runs_as_written(tmp_path, monkeypatch, capsys):
     for command in commands:
         argv = shlex.split(command)
         assert argv[0] == "furuta-cosim"
+        # the board in real time, as written, can trip a run late on a loaded machine (the
+        # supervisor's deadline check, tests/test_rig.py): here it runs as fast as it can, the
+        # same rig sample for sample
+        argv = ["virtual:fast" if a == "virtual" else a for a in argv]
         code = main(argv[1:])
         out, err = capsys.readouterr()
         assert code == 0, (command, out[-2000:], err[-2000:])

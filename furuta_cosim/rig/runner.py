@@ -39,7 +39,8 @@ from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TERMINATED, TRIP
                                          Supervisor, Trip)
 
 COLUMNS = ("t", "late", "compute", "r", "V_command", "V", "theta0", "theta1", "i", "dtheta0",
-           "dtheta1", "arm_counts", "pendulum_counts", "mode")  # mode: 0 swinging up, 1 the controller
+           "dtheta1", "arm_counts", "pendulum_counts", "mode", "phase")
+# mode: 0 swinging up, 1 the controller; phase: 0 for a plain run, a trial's phase (rig/trial.py)
 RATE_FILTER = 40.0       # Hz: the rates' filtered difference
 WATCHDOG = 0.1           # s: the board's watchdog timeout
 MAX_DURATION = 3600.0    # s: one run at most (its log is kept in memory)
@@ -62,7 +63,7 @@ def controller_for(controller, period: float | None = None, scenario=None):
         prepared = prepare(load_scenario(scenario))
         compiled = compile_controller(prepared, controller, key="controller")
         return compiled.cfile, compiled.runtime, prepared.t, prepared.rbar, prepared.control_period
-    if isinstance(controller, Homing):
+    if callable(getattr(controller, "control", None)):  # a runtime of the rig's own: homing, a trial
         return None, controller, None, None, controller.period
     cfile = controller if not isinstance(controller, (str, Path)) else load_controller(controller)
     period = period or cfile.period or cfile.controller.period
@@ -246,9 +247,10 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
             command = runtime.control(x, float(reference[k]))
             volts = supervisor.clip(command)
             late = woke - deadline
-            rows[k] = (k * period, late, 0.0, reference[k], command, volts, theta0, theta1, current,
-                       dtheta0, dtheta1, reading.arm, reading.pendulum,
-                       runtime.mode if mode is not None else 1.0)
+            # a trial's runtime says which reference it followed and in which phase it is
+            rows[k] = (k * period, late, 0.0, getattr(runtime, "reference", reference[k]), command, volts,
+                       theta0, theta1, current, dtheta0, dtheta1, reading.arm, reading.pendulum,
+                       runtime.mode if mode is not None else 1.0, getattr(runtime, "phase", 0.0))
             done = k + 1
             supervisor.check(k * period, x, reading.current, volts, late)
             board.write(volts)

@@ -171,7 +171,8 @@ class VirtualBoard(Board):
 
     name = "virtual"
     description = ("the rig stand-in: a plant FMU stepped in real time in a process of its own, "
-                   "read and driven as a QUBE's board (options: fast, to run it as fast as it can)")
+                   "read and driven as a QUBE's board (options: fast, to run it as fast as it can; "
+                   "delay=SECONDS, 0.001 by default; amplifier=VOLTS, 15 by default)")
     has_current = True
 
     def __init__(self, plant, *, paced: bool = True, log: Path | None = None, amplifier: float = AMPLIFIER,
@@ -193,12 +194,26 @@ class VirtualBoard(Board):
 
     @classmethod
     def from_argument(cls, argument: str, plant=None, **options) -> "VirtualBoard":
-        if argument not in ("", "fast"):
-            raise ConfigError([f"board: virtual takes no option but 'fast' (virtual:fast runs as fast "
-                               f"as it can), got {argument!r}"])
+        """``virtual[:OPTION,...]``: ``fast`` (as fast as it can), ``delay=SECONDS`` (from a write
+        to the motor), ``amplifier=VOLTS`` (its range)."""
         if plant is None:
             raise ConfigError(["board: the virtual board runs a plant: give `plant`"])
-        return cls(plant, paced=argument != "fast" and options.pop("paced", True), **options)
+        paced = options.pop("paced", True)
+        for item in filter(None, argument.split(",")):
+            name, equals, text = item.partition("=")
+            if item == "fast":
+                paced = False
+                continue
+            bounds = {"delay": (0.0, 0.1), "amplifier": (0.1, 1000.0)}.get(name)
+            try:
+                value = float(text) if equals and bounds else math.nan
+            except ValueError:
+                value = math.nan
+            if bounds is None or not bounds[0] <= value <= bounds[1]:
+                raise ConfigError([f"board: virtual:{argument}: {item!r}: expected fast, delay=SECONDS "
+                                   "(0 to 0.1) or amplifier=VOLTS (0.1 to 1000), separated by commas"])
+            options[name] = value
+        return cls(plant, paced=paced, **options)
 
     # -- the interface ---------------------------------------------------------------------
     def open(self) -> None:
