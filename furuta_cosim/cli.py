@@ -268,6 +268,11 @@ def cmd_tune(args) -> int:
         shown = "none yet" if best is None else format(best, ".6g")
         bar("tuning", done, total, f"best {shown}, feasible {feasible / done:.0%}, {rate:.1f}/s")
 
+    if args.board or args.evaluator:
+        return _tune_on_rig(args, spec, out, started)
+    for flag, value in (("--n-trials", args.n_trials), ("--rig", args.rig), ("--wait", args.wait)):
+        if value is not None:
+            raise ConfigError([f"{flag}: tunes with a rig in the loop: give --board or --evaluator external DIR"])
     workers = _workers(args)
     # every option that shapes the run, so that the printed line continues this run exactly
     args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out)]
@@ -288,6 +293,75 @@ def cmd_tune(args) -> int:
         print(dumps(document))
     else:
         print(summary_text(spec, document), end="")
+        print(f"run directory: {out}")
+    return 0 if document["best"] else EXIT_FAILED
+
+
+def _tune_on_rig(args, spec, out, started) -> int:
+    """``tune --board`` / ``--evaluator external DIR``: each evaluation a rig trial."""
+    import time
+
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.progress import Progress
+    from furuta_cosim.tuning.rig import rig_summary_text, tune_on_rig
+    from furuta_cosim.tuning.trials import WAIT, BoardTrials, ExternalTrials
+
+    if args.board and args.evaluator:
+        raise ConfigError(["--board: a tuning runs its trials on a board or on an external rig "
+                           "(--evaluator external DIR), not both"])
+    for flag, value in (("--n-calls", args.n_calls), ("--workers", args.workers), ("--dask", args.dask)):
+        if value is not None:
+            raise ConfigError([f"{flag}: a tuning on the rig runs one trial at a time, counted by "
+                               "--n-trials" if flag == "--n-calls" else
+                               f"{flag}: a tuning on the rig runs one trial at a time"])
+    if args.evaluator:
+        kind, folder = args.evaluator
+        if kind != "external":
+            raise ConfigError([f"--evaluator: expected external DIR, got {kind!r}"])
+        if args.rig is not None:
+            raise ConfigError(["--rig: an external rig is its own: its limits are its own code's"])
+        metrics = sorted({t.metric for t in spec.objective.all_terms}
+                         | {m for m, _ in spec.constraints.no_worse_than}
+                         | {("u.peak_abs" if n == "u" else f"{n}.max_abs") for n, _ in spec.constraints.max_abs})
+        trials = ExternalTrials(folder, WAIT if args.wait is None else args.wait, metrics)
+    else:
+        if args.wait is not None:
+            raise ConfigError(["--wait: how long to wait for an external rig's result (--evaluator external DIR)"])
+        rig = args.rig or spec.plant
+        if rig is None:
+            raise ConfigError(["--rig: the spec names no plant: give the rig's plant file (its limits and "
+                               "sensors; the virtual board runs it)"])
+        plant = load_plant(rig)
+        if spec.rig.reset is None:
+            raise ConfigError([f"{spec.source}: rig.reset: missing: a rig trial resets the rig with a "
+                               "swing-up-and-balance file (e.g. reset: swingup-qube)"])
+        trials = BoardTrials(args.board, plant, spec.rig.reset, spec.rig.fall,
+                             spec.optimizer.seed if args.seed is None else args.seed)
+    bar = Progress(delay=0.0, unit="trial")
+
+    def progress(done, total, best, feasible):
+        rate = done / max(time.monotonic() - started, 1e-9)
+        shown = "none yet" if best is None else format(best, ".6g")
+        bar("rig trials" if total == (args.n_trials or spec.rig.n_trials) else "simulation", done, total,
+            f"best {shown}, feasible {feasible / done:.0%}, {rate:.2f}/s")
+
+    where = (["--board", args.board] if args.board else ["--evaluator", "external", args.evaluator[1]])
+    args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out), *where]
+                                + (["--rig", args.rig] if args.rig else [])
+                                + (["--optimizer", args.optimizer] if args.optimizer else [])
+                                + (["--n-trials", str(args.n_trials)] if args.n_trials is not None else [])
+                                + (["--seed", str(args.seed)] if args.seed is not None else [])
+                                + ["--resume"])
+    try:
+        document = tune_on_rig(spec, out, trials, method=args.optimizer, n_trials=args.n_trials, seed=args.seed,
+                               resume=args.resume, progress=progress,
+                               log=lambda line: (bar.close(), print(line, file=sys.stderr)))
+    finally:
+        bar.close()
+    if args.json:
+        print(dumps(document))
+    else:
+        print(rig_summary_text(spec, document), end="")
         print(f"run directory: {out}")
     return 0 if document["best"] else EXIT_FAILED
 
@@ -659,6 +733,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue the run in -o after a crash")
     p.add_argument("--n-calls", type=int, help="evaluations (default: the spec's)")
     p.add_argument("--seed", type=int, help="default: the spec's")
+    p.add_argument("--board", metavar="NAME[:OPTIONS]",
+                   help="tune with the rig in the loop: each evaluation a trial on this board (virtual, "
+                        "virtual:fast, quanser, ...; as for rig run); the method defaults to safe")
+    p.add_argument("--evaluator", nargs=2, metavar=("external", "DIR"),
+                   help="tune with a rig your own code runs: each candidate written to DIR, its trial's "
+                        "result read back (docs: Tuning on the rig)")
+    p.add_argument("--rig", metavar="PLANT", help="with --board: the rig's plant file (limits, sensors; "
+                                                  "the virtual board runs it); default the spec's plant")
+    p.add_argument("--n-trials", type=int, help="with --board or --evaluator: rig trials in all, the "
+                                                "baseline's included (default the spec's rig.n_trials)")
+    p.add_argument("--wait", type=float, metavar="SECONDS",
+                   help="with --evaluator external: wait this long for a trial's result (default 3600)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=cmd_tune)
 
@@ -794,7 +880,7 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit",
          "model": "--model", "duration": "--duration", "scenario": "--scenario",
          "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board",
-         "timeout": "--timeout"}
+         "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 
@@ -833,7 +919,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {as_flags(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except RunStopped as error:
-        print(f"stopped: {as_flags(str(error))}", file=sys.stderr)
+        print(f"stopped: {as_flags(str(error))}" + _resume_hint(args), file=sys.stderr)
         return EXIT_STOPPED
     except OSError as error:
         # a full disk, a folder that went away: one line; the atomic writers left nothing

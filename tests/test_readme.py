@@ -63,9 +63,12 @@ def test_main_job_runs_from_a_clean_clone_in_a_new_venv(tmp_path):
 
 
 PYTHON = python_blocks()
+# an example that tunes (a simulated prior, then rig trials) takes more than a few seconds
+RUNS = [pytest.param(k, marks=pytest.mark.slow) if "tune_on_rig(" in block else k
+        for k, (_, block) in enumerate(PYTHON)]
 
 
-@pytest.mark.parametrize("index", range(len(PYTHON)))
+@pytest.mark.parametrize("index", RUNS)
 def test_the_docs_python_examples_run_as_written(index, tmp_path, monkeypatch):
     where, block = PYTHON[index]
     monkeypatch.chdir(tmp_path)

@@ -33,7 +33,13 @@ def record(index: int, x, names, outcome: Outcome, origin: str = "", surrogate=N
                        # refused by the loop's exact checks (bo checks them, not learns them)
                        "known": outcome.known,
                        "origin": origin, "surrogate": surrogate,
-                       "wall_time": outcome.wall_time, "worker": outcome.worker, "error": outcome.error})
+                       "wall_time": outcome.wall_time, "worker": outcome.worker, "error": outcome.error,
+                       # a rig trial (tuning/rig.py): its run folder and status, and the same
+                       # candidate in simulation (the residual the safe method learns)
+                       # each co-simulated constraint's slack by name (the safe method models each)
+                       **({"slacks": outcome.slacks} if outcome.slacks is not None else {}),
+                       **({"trial": outcome.trial} if outcome.trial is not None else {}),
+                       **({"simulation": outcome.simulation} if outcome.simulation is not None else {})})
 
 
 def _append(handle, record: dict) -> None:

@@ -39,6 +39,7 @@ class Run:
     clock: dict                  # rundir.Clock: "optimizer" and "evaluation" seconds
     progress: Callable | None = None
     log: Callable[[str], None] | None = None
+    prior: object = None         # tuning on a rig: the simulated fidelity (tuning/rig.py's Fidelity)
 
     @property
     def records(self) -> list[dict]:
@@ -94,6 +95,7 @@ class Method:
     name: ClassVar[str]
     description: ClassVar[str]
     one_number: ClassVar[bool] = False      # minimizes one number: no tradeoff objective
+    rig_only: ClassVar[bool] = False        # needs a rig in the loop (tune --board)
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -237,6 +239,47 @@ class DifferentialEvolution(Method):
         except _Spent:
             pass
         run.clock["optimizer"] += time.perf_counter() - started - (run.clock["evaluation"] - waited)
+
+
+class Safe(Method):
+    """Safe Bayesian optimization on a rig (tuning/safe.py): from the safe seed (the spec's
+    first baseline), only candidates whose constraints hold at the upper confidence bound of
+    the simulation plus a GP of the sim-to-rig gap. Tuning on a rig only."""
+
+    name = "safe"
+    description = "safe Bayesian optimization on a rig, the simulation its prior"
+    one_number = True
+    rig_only = True
+
+    def search(self, run: Run) -> None:
+        from furuta_cosim.controllers import load_controller
+        from furuta_cosim.errors import ConfigError
+        from furuta_cosim.tuning.history import record
+        from furuta_cosim.tuning.safe import SafeBO
+
+        if run.prior is None:
+            raise ConfigError(["method: safe tunes on a rig (`tune --board` or `--evaluator external`): "
+                               "in simulation use bo"])
+        spec, space = run.spec, run.evaluator.space
+        if not run.records:  # the safe seed: the first baseline's own trial
+            cfile = load_controller(spec.baselines[0])
+            x, how = space.point_of(cfile)
+            if x is None:
+                raise ConfigError([f"{spec.source}: baselines[0]: {cfile.name} is where the safe method "
+                                   f"starts, and it is not a point of the search space ({how})"])
+            started = time.perf_counter()
+            outcome = run.evaluator.baseline_outcome(spec.baselines[0])
+            outcome.simulation = run.prior.exact(x)
+            run.clock["evaluation"] += time.perf_counter() - started
+            run.history.append(record(0, x, space.names, outcome, f"safe seed {cfile.name}"))
+            run.report()
+        proposer = SafeBO(space.bounds, run.seed, run.prior, beta=spec.rig.beta, screen=_stable(run.evaluator))
+        while len(run.records) < run.n_calls:
+            started = time.perf_counter()
+            proposal = proposer.propose(run.records, len(run.records))
+            run.clock["optimizer"] += time.perf_counter() - started
+            first = len(run.records)
+            run.collect([proposal.x], [run.submit(proposal.x, first)], [proposal.origin], proposal.surrogate)
 
 
 def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[float], str]]:

@@ -65,6 +65,9 @@ class Outcome:
     stopped: dict | None = None     # a run stopped early: {"run", "t", "metric", "value", "bound"}
     skipped: list = field(default_factory=list)    # the runs not simulated once one had failed
     known: bool = False             # decided by the loop's exact checks, never co-simulated
+    slacks: dict | None = None      # each co-simulated constraint's slack, clipped to [-1, 1]
+    trial: dict | None = None       # a rig trial: its folder, status, why it stopped, what failed
+    simulation: dict | None = None  # a rig trial's candidate simulated: value, margin, feasible
 
 
 def _margin(slacks) -> float:
@@ -119,6 +122,7 @@ class Evaluator:
         self._runs = None  # [(label, prepared, session)], prepared on first use
         self._references = {}  # controller file -> its metrics by run (computed once)
         self._still = {}       # run -> the error metrics of an output that never moves
+        self._named = None     # the slacks of the candidate being scored, by constraint name
 
     # -- the cheap checks ------------------------------------------------------------------
     def loop_checks(self, controller: GeneralizedController) -> tuple[dict, float]:
@@ -215,6 +219,7 @@ class Evaluator:
         spec, penalty = self.spec, self.spec.constraints.penalty
         early = early and spec.constraints.stop_early is not None
         scores, metrics, violation, slacks, violated = [], {}, 0.0, list(slacks), []
+        self._named = {}
         runs = self.ordered(order)
         for position, (label, prepared, _) in enumerate(runs):
             session = self._session(prepared)
@@ -233,6 +238,7 @@ class Evaluator:
                 return Outcome(penalty * 2, False, constraints, metrics, f"{label}: {error}")
             if result.failure:
                 metrics[label] = json_safe(result.metrics)
+                self._named.update(dict.fromkeys(self.constraint_names(label), MARGIN_CAP))
                 violation += 1.0
                 constraints[f"{label}.diverged"] = True
                 slacks.append(math.inf)
@@ -275,8 +281,10 @@ class Evaluator:
 
     def _constraint_slacks(self, label: str, values: dict, constraints: dict) -> list[float]:
         """The slack of each co-simulated constraint on one run (> 0: broken), recorded in
-        ``constraints``; a metric the run does not have counts as infinite."""
+        ``constraints`` (and by name, clipped, for the outcome's ``slacks``); a metric the run
+        does not have counts as infinite."""
         spec, found = self.spec, []
+        names = iter(self.constraint_names(label))
         for signal, bound in spec.constraints.max_abs:
             value = values.get(_peak(signal), math.inf)
             constraints[f"{label}.{signal}.max_abs"] = value
@@ -287,7 +295,15 @@ class Evaluator:
             ratio = value / reference if reference > 0 else (0.0 if value <= 0 else math.inf)
             constraints[f"{label}.{metric}/{Path(spec.constraints.baseline).stem}"] = ratio
             found.append(ratio / factor - 1.0)
+        named = getattr(self, "_named", None)
+        if named is not None:
+            named.update({name: _margin([slack]) for name, slack in zip(names, found)})
         return found
+
+    def constraint_names(self, label: str) -> list[str]:
+        """The names of a run's co-simulated constraints, in the order of their slacks."""
+        return ([f"{label}.{signal}.max_abs" for signal, _ in self.spec.constraints.max_abs]
+                + [f"{label}.{metric}" for metric, _ in self.spec.constraints.no_worse_than])
 
     def limits(self, label: str, prepared) -> dict[str, float]:
         """The bounds a run of ``label`` is watched against (cosim/limits.py): each constraint
@@ -371,8 +387,9 @@ class Evaluator:
         known = [v for v in criteria.values() if v is not None]
         total = float(np.mean(known)) if len(known) == len(criteria) else None
         tradeoff = criteria if spec.objective.type == "tradeoff" else None
+        named = getattr(self, "_named", None)
         extra = dict(margin=_margin(slacks), criteria=tradeoff, violated=list(violated),
-                     stopped=stopped, skipped=list(skipped))
+                     stopped=stopped, skipped=list(skipped), slacks=dict(named) if named is not None else None)
         if violation > 0 or total is None or stopped or skipped:
             return Outcome(penalty + min(violation, penalty), False, constraints, metrics,
                            value=None if stopped or skipped else total, **extra)
@@ -387,20 +404,7 @@ class Evaluator:
         """The metrics of a controller file the spec names, on every run (computed once per
         process). A relative term's metric must be positive there: it is divided by it."""
         if controller not in self._references:
-            from furuta_cosim.cosim import compile_controller, evaluate
-
-            found = {}
-            for label, prepared, session in self.runs():
-                try:
-                    compiled = compile_controller(prepared, controller)
-                except ConfigError as error:
-                    raise error.within(f"{self.spec.source}: {key}") from None
-                result = evaluate(prepared, session, compiled)
-                found[label] = result.metrics
-                if label not in self._still:
-                    from furuta_cosim.metrics import standing_still
-
-                    self._still[label] = standing_still(result.trace, prepared.scenario.error_window)
+            found = self._reference_runs(controller, key)
             for k, criterion in enumerate(self.spec.objective.criteria):
                 for n, term in enumerate(criterion.terms):
                     if term.relative_to != controller:
@@ -416,6 +420,28 @@ class Evaluator:
                                                "a positive number"])
             self._references[controller] = found
         return self._references[controller]
+
+    def _reference_runs(self, controller: str, key: str) -> dict:
+        """The metrics of a controller file on every run (``label -> metrics``), each run to its
+        end; what an output that never moves would score is noted on the way (:meth:`vacuous`)."""
+        from furuta_cosim.cosim import compile_controller, evaluate
+        from furuta_cosim.metrics import standing_still
+
+        found = {}
+        for label, prepared, session in self.runs():
+            try:
+                compiled = compile_controller(prepared, controller)
+            except ConfigError as error:
+                raise error.within(f"{self.spec.source}: {key}") from None
+            result = evaluate(prepared, session, compiled)
+            found[label] = result.metrics
+            if label not in self._still:
+                self._still[label] = standing_still(result.trace, prepared.scenario.error_window)
+        return found
+
+    def variants(self) -> tuple:
+        """The plant variants every scenario runs on (the spec's)."""
+        return self.spec.variants
 
     def vacuous(self) -> list[str]:
         """The tracking constraints an output that never moves would meet (its error metric
@@ -463,7 +489,8 @@ class Evaluator:
                         scenario = on_plant(scenario, spec.plant)
                 except ConfigError as error:
                     raise error.within(f"{spec.source}: objective.scenarios[{j}]") from None
-                for k, overrides in enumerate(spec.variants):
+                variants = self.variants()
+                for k, overrides in enumerate(variants):
                     where = f"{spec.source}: variants[{k}]"
                     try:
                         prepared = prepare(scenario, overrides=dict(overrides))
@@ -491,7 +518,7 @@ class Evaluator:
                         wrong = problem(metric, prepared.metrics)
                         if wrong:
                             raise ConfigError([f"{spec.source}: {key}: scenario {scenario.name}: {wrong}"])
-                    label = scenario.name + (f"[{k}]" if len(spec.variants) > 1 else "")
+                    label = scenario.name + (f"[{k}]" if len(variants) > 1 else "")
                     runs.append((label, prepared, session))
             self._runs = runs
         return self._runs

@@ -109,6 +109,9 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
     refusal = METHODS[method].refusal(spec)
     if refusal:
         raise ConfigError([f"method: {refusal}"])
+    if METHODS[method].rig_only:
+        raise ConfigError([f"method: {method} ({METHODS[method].description}) tunes on a rig: give a "
+                           "board (`tune --board`) or an external rig (`--evaluator external DIR`)"])
     check_workers(workers)
     if dask is not None:
         from furuta_cosim.tuning.executors import check_address

@@ -111,6 +111,24 @@ class OptimizerSettings:
     warm_start: bool = True             # the spec's baselines enter the initial design too
 
 
+# rig trials of one tuning at most (`rig.n_trials`, `tune --n-trials`)
+MAX_TRIALS = 1000
+
+
+@dataclass(frozen=True)
+class RigSettings:
+    """How a tuning runs on a rig (``rig:``; tuning/rig.py): the budget in rig trials, the
+    swing-up-and-balance file that resets the rig and holds the pendulum between scenarios,
+    how far from upright a candidate's pendulum may fall before the trial counts it failed,
+    the width of the safe method's confidence bounds, and the simulated fidelity's budget."""
+
+    n_trials: int = 30
+    reset: str | None = None       # a swing-up file (a name or a path, as the spec names controllers)
+    fall: float = 0.5              # rad from upright
+    beta: float = 2.0              # the safe set: mean + beta std of the constraint <= 0
+    simulations: int | None = None  # the simulated fidelity's evaluations (default optimizer.n_calls)
+
+
 @dataclass(frozen=True)
 class TuningSpec:
     name: str
@@ -130,6 +148,7 @@ class TuningSpec:
     notes: tuple[str, ...] = ()        # what running on ``plant`` changed, in words
     fit: "FitSource | None" = None     # where the variants were drawn from, when from a fit
     swingup: str | None = None         # a swing-up file whose settings are tuned (``blocks``)
+    rig: RigSettings = RigSettings()   # tuning with a rig in the loop (``tune --board``)
 
     @property
     def source(self) -> str:
@@ -193,7 +212,7 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
     check = Checker(path)
     top = check.mapping(load_yaml(path), "", required=("controller", "parameters", "objective"),
                         optional=("name", "description", "constraints", "optimizer", "variants",
-                                  "baselines", "plant"))
+                                  "baselines", "plant", "rig"))
     if top is None:
         check.done()
     given_controller = top.get("controller", {})
@@ -270,6 +289,7 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
     objective = _objective(check, top.get("objective"), resolve)
     constraints = _constraints(check, top.get("constraints", {}))
     optimizer = _optimizer(check, top.get("optimizer", {}))
+    rig = _rig(check, top.get("rig", {}))
     baselines = ()
     if "baselines" in top:
         baselines = tuple(resolve(name, f"baselines[{k}]")
@@ -318,7 +338,7 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
     check.done()
     return TuningSpec(name, description, path, n_xc, time == "discrete", period, model_name, blocks,
                       objective, constraints, optimizer, variants, baselines, plant,
-                      tuple(dict.fromkeys(notes)), source, swingup)
+                      tuple(dict.fromkeys(notes)), source, swingup, rig)
 
 
 def _swingup_base(check: Checker, section: dict, path: Path):
@@ -712,6 +732,43 @@ def _constraints(check: Checker, value) -> Constraints:
         stop = check.number(stop, "constraints.stop_early", minimum=0.0, maximum=MAX_STOP)
     return Constraints(margin or 0.0, flags["controller_stable"], tuple(bounds.items()),
                        flags["requirements"], penalty or Constraints.penalty, baseline, factors, stop)
+
+
+def _rig(check: Checker, value) -> RigSettings:
+    """``rig:``: the settings of a tuning with a rig in the loop (RigSettings)."""
+    section = check.mapping(value, "rig", optional=("n_trials", "reset", "fall", "beta", "simulations"))
+    if section is None:
+        return RigSettings()
+    defaults = RigSettings()
+    values = {"n_trials": check.number(section.get("n_trials", defaults.n_trials), "rig.n_trials",
+                                       integer=True, minimum=2, maximum=MAX_TRIALS),
+              "fall": check.number(section.get("fall", defaults.fall), "rig.fall", positive=True, maximum=3.0),
+              "beta": check.number(section.get("beta", defaults.beta), "rig.beta", minimum=0.0, maximum=10.0)}
+    if "simulations" in section:
+        values["simulations"] = check.number(section["simulations"], "rig.simulations", integer=True,
+                                             minimum=1, maximum=MAX_CALLS)
+    if "reset" in section:
+        name = check.string(section["reset"], "rig.reset")
+        values["reset"] = _reset_file(check, name) if name else None
+    if None in (values["n_trials"], values["fall"], values["beta"]):
+        return defaults
+    return RigSettings(**values)
+
+
+def _reset_file(check: Checker, name: str) -> str | None:
+    """The swing-up file of ``rig.reset``, resolved as the spec's other controller files are."""
+    from furuta_cosim.controllers import load_controller
+
+    try:
+        cfile = load_controller(name, Path(check.source).parent)
+    except ConfigError as error:
+        check.fail("rig.reset", "; ".join(error.problems))
+        return None
+    if cfile.swingup is None:
+        check.fail("rig.reset", f"{cfile.source} is not a swing-up file (type: swingup): a rig trial "
+                                "resets the rig by swinging the pendulum up and catching it")
+        return None
+    return str(cfile.path.resolve())
 
 
 # the optimizer's numeric settings and their checks (the defaults: OptimizerSettings)

@@ -1,0 +1,172 @@
+"""Tuning with the rig in the loop, measured on a rig that is not the model.
+
+The rig is the virtual board running ``qube-servo-3-worn`` (more friction, a softer cable) with
+a 3 ms transport delay (the model's board: 1 ms); every controller is designed and simulated on
+``qube-servo-3``. For each seed of ``--seeds``, on the spec ``effort-qube``:
+
+- (a) transferred: the spec tuned in simulation alone (``bo``, the spec's budget), its best
+  controller run on the rig;
+- (b) safe: ``tune --board`` with the safe method, at most ``--trials`` rig trials, the same
+  simulation as its prior; its best controller;
+- (c) the LQR (lqr-qube), the baseline;
+- (d) random: ``tune --board --optimizer random``, the same number of trials, nothing but the
+  supervisor between a candidate and the rig (what the safe method spares it).
+
+(a), (b), (c) and (d) are then each run again in ``--validations`` validation trials (3; in each
+round the same noise for all, new to every tuning), each scored against the LQR's trial of its
+round: the rig objective of the table is the mean, and a controller counts as feasible when it
+was in every round. Differential evolution is not a row: its first generation (5 x 11
+candidates) is already beyond 30 trials. Each row also says the trials each tuning broke a
+constraint in or had stopped by the supervisor, and the wall time; ``--paced N`` runs the first
+N seeds' safe tuning again on the board paced in real time (its wall time beside the unpaced
+one's).
+
+    python tools/bench_rig_tune.py --seeds 10 --out bench-rig-tune
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import time
+from pathlib import Path
+
+from furuta_cosim.controllers import load_controller
+from furuta_cosim.fmu.plants import load_plant
+from furuta_cosim.tuning.rig import Fidelity, RigEvaluator, tune_on_rig
+from furuta_cosim.tuning.spec import load_spec
+from furuta_cosim.tuning.trials import BoardTrials
+
+RIG, DELAY = "qube-servo-3-worn", 0.003
+
+
+def trials_on(board: str, plant, spec, seed: int) -> BoardTrials:
+    return BoardTrials(board, plant, spec.rig.reset, spec.rig.fall, seed, {"delay": DELAY})
+
+
+def tuned(spec, plant, folder: Path, seed: int, n_trials: int, method: str, board: str) -> tuple[dict, float]:
+    if folder.exists():
+        shutil.rmtree(folder)
+    trials = trials_on(board, plant, spec, seed)
+    started = time.perf_counter()
+    document = tune_on_rig(spec, folder, trials, method=method, n_trials=n_trials, seed=seed)
+    return document, time.perf_counter() - started
+
+
+def validated(spec, plant, folder: Path, seed: int, files: dict, count: int) -> dict:
+    """Each controller file of ``files`` (and the LQR) in ``count`` validation trials on the rig,
+    each round against the LQR's trial of that round, the noise new to every tuning: name ->
+    (the mean of its values, the rounds it was feasible in)."""
+    rounds = []
+    for v in range(count):
+        where = folder / f"round-{v}"
+        if where.exists():
+            shutil.rmtree(where)
+        trials = trials_on("virtual:fast", plant, spec, seed + 1000 * (v + 1))
+        evaluator = RigEvaluator(spec, trials, where, Fidelity(spec, []))
+        evaluator.check_references()
+        found = {}
+        for k, (name, path) in enumerate(files.items()):
+            evaluator.index = k
+            outcome = evaluator.score(load_controller(path))
+            found[name] = (outcome.value, outcome.feasible)
+        lqr = evaluator.baseline_outcome(spec.baselines[0])
+        found["lqr"] = (lqr.value, lqr.feasible)
+        rounds.append(found)
+    result = {}
+    for name in rounds[0]:
+        values = [r[name][0] for r in rounds]
+        mean = None if any(v is None for v in values) else statistics.fmean(values)
+        result[name] = (mean, sum(1 for r in rounds if r[name][1]))
+    return result
+
+
+def shown(value, feasible, count) -> str:
+    if value is None:
+        return "failed"
+    return f"{value:.3f}" + ("" if feasible == count else f" (feasible in {feasible} of {count})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--trials", type=int, default=30)
+    parser.add_argument("--paced", type=int, default=0, help="seeds whose safe tuning also runs paced")
+    parser.add_argument("--validations", type=int, default=3, help="validation trials per controller")
+    parser.add_argument("--out", default="bench-rig-tune")
+    args = parser.parse_args()
+    spec = load_spec("effort-qube")
+    plant = load_plant(RIG)
+    out = Path(args.out)
+    rows = []
+    for seed in range(args.seeds):
+        safe, safe_wall = tuned(spec, plant, out / f"seed-{seed}" / "safe", seed, args.trials, "safe", "virtual:fast")
+        rand, rand_wall = tuned(spec, plant, out / f"seed-{seed}" / "random", seed, args.trials, "random",
+                                "virtual:fast")
+        folder = out / f"seed-{seed}" / "safe"
+        files = {"transferred": folder / "simulation" / "best.yaml", "safe": folder / "best.yaml"}
+        if (out / f"seed-{seed}" / "random" / "best.yaml").is_file():
+            files["random"] = out / f"seed-{seed}" / "random" / "best.yaml"
+        scores = validated(spec, plant, out / f"seed-{seed}" / "validation", seed, files, args.validations)
+        row = {"seed": seed, "scores": scores, "safe": {k: safe[k] for k in ("trials", "violations", "trips")},
+               "random": {k: rand[k] for k in ("trials", "violations", "trips")},
+               "safe_best_in_run": safe["best"]["objective"] if safe["best"] else None,
+               "wall": {"safe": safe_wall, "random": rand_wall}}
+        if seed < args.paced:
+            _, paced_wall = tuned(spec, plant, out / f"seed-{seed}" / "safe-paced", seed, args.trials, "safe",
+                                  "virtual")
+            row["wall"]["safe_paced"] = paced_wall
+        rows.append(row)
+        print(f"seed {seed}: " + ", ".join(f"{k} {shown(*v, args.validations)}" for k, v in scores.items())
+              + f"; safe: {safe['violations']} broke a constraint, {safe['trips']} tripped, "
+                f"{safe['trials']} trials, {safe_wall:.0f} s; random: {rand['violations']} broke a "
+                f"constraint, {rand['trips']} tripped", flush=True)
+    (out / "results.json").write_text(json.dumps(rows, indent=2) + "\n")
+    print()
+    print(f"rig objective: the mean of {args.validations} validation trials; infeasible unless feasible in every one")
+    print("| | rig objective, median | worst | seeds where (b) is lower | trials that broke a constraint "
+          "(seeds with none) | supervisor trips |")
+    print("|---|---|---|---|---|---|")
+    for name, label in (("transferred", "(a) tuned in simulation, transferred"),
+                        ("safe", "(b) safe, on the rig"), ("lqr", "(c) LQR"), ("random", "(d) random, on the rig")):
+        values = [r["scores"][name] for r in rows if name in r["scores"]]
+        if not values:
+            continue
+        objective = [v if (v is not None and ok == args.validations) else float("inf") for v, ok in values]
+        lower = sum(1 for r in rows if name in r["scores"]
+                    and _beats(r["scores"]["safe"], r["scores"][name], args.validations))
+        counts = {"safe": "safe", "random": "random"}.get(name)
+        broke = trips = "-"
+        if counts:
+            broke = (f"{sum(r[counts]['violations'] for r in rows)} "
+                     f"({sum(1 for r in rows if r[counts]['violations'] == 0)} of {len(rows)})")
+            trips = str(sum(r[counts]["trips"] for r in rows))
+        infeasible = sum(1 for v, ok in values if ok < args.validations)
+        print(f"| {label} | {_fmt(statistics.median(objective))} | {_fmt(max(objective))}"
+              + (f" ({infeasible} infeasible)" if infeasible else "")
+              + f" | {'-' if name == 'safe' else f'{lower} of {len(values)}'} | {broke} | {trips} |")
+    known = [v for r in rows for v, ok in r["scores"].values() if v is not None and ok == args.validations]
+    print(f"\nthe lowest known: {min(known):.3f} (any controller here, feasible in every validation round)")
+    walls = [r["wall"]["safe"] for r in rows]
+    print(f"wall time of a safe tuning (simulation prior included), unpaced: median {statistics.median(walls):.0f} s")
+    paced = [r["wall"]["safe_paced"] for r in rows if "safe_paced" in r["wall"]]
+    if paced:
+        print(f"paced in real time: {', '.join(f'{w:.0f} s' for w in paced)} "
+              f"({paced[0] / walls[0]:.0f} times the unpaced run of the same seed)")
+
+
+def _beats(ours, theirs, count: int) -> bool:
+    """(b) is lower: feasible in every validation round, and the other is not or scores more."""
+    value, ok = ours
+    other, other_ok = theirs
+    return ok == count and value is not None and (other_ok < count or other is None or value < other)
+
+
+def _fmt(value: float) -> str:
+    return "infeasible" if value == float("inf") else f"{value:.3f}"
+
+
+if __name__ == "__main__":
+    main()
