@@ -289,10 +289,16 @@ def cmd_tune(args) -> int:
                         log=lambda line: print(line, file=sys.stderr))
     finally:
         bar.close()
+    return _tuned(args, document, summary_text(spec, document), out)
+
+
+def _tuned(args, document: dict, text: str, out) -> int:
+    """A tuning's end: its summary (JSON with --json), the run directory; exit 1 without a
+    feasible controller."""
     if args.json:
         print(dumps(document))
     else:
-        print(summary_text(spec, document), end="")
+        print(text, end="")
         print(f"run directory: {out}")
     return 0 if document["best"] else EXIT_FAILED
 
@@ -358,12 +364,7 @@ def _tune_on_rig(args, spec, out, started) -> int:
                                log=lambda line: (bar.close(), print(line, file=sys.stderr)))
     finally:
         bar.close()
-    if args.json:
-        print(dumps(document))
-    else:
-        print(rig_summary_text(spec, document), end="")
-        print(f"run directory: {out}")
-    return 0 if document["best"] else EXIT_FAILED
+    return _tuned(args, document, rig_summary_text(spec, document), out)
 
 
 def _overrides(items) -> dict:

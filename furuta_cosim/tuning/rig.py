@@ -580,14 +580,10 @@ def rig_summary_text(spec, document: dict) -> str:
                      "trial-to-trial spread, not to the digit.")
     else:
         lines.append("No feasible controller was found on the rig.")
-    for name, baseline in document["baselines"].items():
-        verdict = f"{baseline['objective']:.6g}" if baseline["feasible"] else \
-            f"infeasible (score {baseline['objective']:.6g})"
-        better = ""
-        if best and baseline["feasible"]:
-            better = (" - the tuned controller scores better" if best["objective"] < baseline["objective"]
-                      else " - the tuned controller does NOT beat it")
-        lines.append(f"- {name}, its trial on the rig: {verdict}{better}")
+    from furuta_cosim.tuning.summary import baseline_line
+
+    lines += [baseline_line(name, baseline, best, "its trial on the rig")
+              for name, baseline in document["baselines"].items()]
     lines += ["", "Trials that broke a constraint or failed:" if document["unsafe"] else
               "No trial broke a constraint or failed."]
     for u in document["unsafe"]:

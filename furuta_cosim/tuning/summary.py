@@ -161,14 +161,7 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
 
         lines += summary_lines(document["front"]) + [""]
     for name, baseline in document["baselines"].items():
-        verdict = f"{baseline['objective']:.6g}" if baseline["feasible"] else \
-            f"infeasible (score {baseline['objective']:.6g})"
-        better = ""
-        if best and baseline["feasible"]:
-            better = (" - the tuned controller scores better" if best["objective"] < baseline["objective"]
-                      else f" - the tuned controller does NOT beat it (worse by "
-                           f"{(best['objective'] / baseline['objective'] - 1) * 100:.1f} %)")
-        lines.append(f"- {name}, scored alike: {verdict}{better}")
+        lines.append(baseline_line(name, baseline, best, "scored alike"))
         if best and baseline["feasible"] and best.get("metrics") and baseline.get("metrics") \
                 and spec.objective.type == "scenarios":
             lines += _run_by_run(spec, best["metrics"], baseline["metrics"], name)
@@ -198,6 +191,18 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
             lines += ["", "The same for the tuned controller and every baseline (left out of the "
                           "table): " + ", ".join(same) + "."]
     return "\n".join(lines) + "\n"
+
+
+def baseline_line(name: str, baseline: dict, best: dict | None, how: str) -> str:
+    """A baseline's score (``how`` it was scored) and whether the tuned controller beats it."""
+    verdict = f"{baseline['objective']:.6g}" if baseline["feasible"] else \
+        f"infeasible (score {baseline['objective']:.6g})"
+    better = ""
+    if best and baseline["feasible"]:
+        better = (" - the tuned controller scores better" if best["objective"] < baseline["objective"]
+                  else f" - the tuned controller does NOT beat it (worse by "
+                       f"{(best['objective'] / baseline['objective'] - 1) * 100:.1f} %)")
+    return f"- {name}, {how}: {verdict}{better}"
 
 
 def _described(objective) -> str:
