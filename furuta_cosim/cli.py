@@ -530,39 +530,48 @@ def cmd_identify(args) -> int:
     def progress(stage, n, cost):
         bar(stage, n, budget, f"cost {cost:.6g}, {n / max(time.monotonic() - started, 1e-9):.0f}/s")
 
-    args.resume_with = f"furuta-cosim identify {args.spec} -o {out} --resume"
+    args.resume_with = " ".join([f"furuta-cosim identify {args.spec} -o {out}"]
+                                + ([f"--starts {args.starts}"] if args.starts != 1 else [])
+                                + (["--no-profiles"] if args.no_profiles else [])
+                                + ([f"--bootstrap {args.bootstrap}"] if args.bootstrap else [])
+                                + ([f"--seed {args.seed}"] if args.seed else []) + ["--resume"])
     try:
         document = identify(args.spec, out, workers=_workers(args), dask=args.dask, resume=args.resume,
-                            progress=progress, log=lambda line: (bar.close(), print(line, file=sys.stderr)))
+                            starts=args.starts, profiles=not args.no_profiles, bootstrap=args.bootstrap,
+                            seed=args.seed, progress=progress,
+                            log=lambda line: (bar.close(), print(line, file=sys.stderr)))
     finally:
         bar.close()
     if args.json:
         print(dumps(document))
         return 0
-    width = max(len(n) for n in document["parameters"])
-    print(f"{'parameter':{width}s}  {'start':>11s}  {'fitted':>11s}  95 % interval")
-    for name, p in document["parameters"].items():
-        if not p.get("identifiable", True):
-            print(f"{name:{width}s}  {p['start']:11.5g}  {p['value']:11.5g}  none: not identifiable "
-                  "from these experiments (the data do not depend on it)")
-            continue
-        lo, hi = p["interval"]
-        print(f"{name:{width}s}  {p['start']:11.5g}  {p['value']:11.5g}  [{lo:.4g}, {hi:.4g}]"
-              + ("  at a bound" if p["at_bound"] else ""))
-    for a, b, r in document["not_separable"]:
-        print(f"not separable: {a} and {b} (correlation {r:+.3f})")
-    for kind in ("experiments", "validation"):
-        for name, outputs in document[kind].items():
-            for output, c in outputs.items():
-                start = document["at_start"][name][output]["rms"]
-                period = c.get("period", {}).get("error")
-                print(f"{'validation ' if kind == 'validation' else ''}{name} {output}: RMS {start:.4g} -> "
-                      f"{c['rms']:.4g}" + (f" ({c['rms'] * 57.29577951308232:.4g} deg)" if output.startswith("theta") else "")
-                      + ("" if period is None else f", period {100 * period:+.3f} %"))
-    print(f"{document['simulations']} simulations in {document['seconds']:.1f} s; "
-          f"plant.yaml, fit.json and report.html in {out}")
-    if document["message"].startswith("stopped"):
-        print(f"note: {document['message']}: the fit is the best point found within the budget")
+    from furuta_cosim.identify.run import summary_text
+
+    print(summary_text(document, out), end="")
+    return 0
+
+
+def cmd_design_experiment(args) -> int:
+    from pathlib import Path
+
+    from furuta_cosim.files import output_folder
+    from furuta_cosim.identify.next_experiment import design, design_text, write_design
+
+    out = output_folder(Path(args.output or Path("runs") / "design" / Path(args.spec).stem))
+    focus = [name.strip() for name in args.focus.split(",") if name.strip()] if args.focus else None
+    found = design(args.spec, args.fit, duration=args.duration, seed=args.seed, voltage=args.voltage,
+                   arm=args.arm, focus=focus, log=lambda line: print(line, file=sys.stderr))
+    written = write_design(found, args.spec, out)
+    if args.json:
+        print(dumps(written))
+        return 0
+    print(design_text(found), end="")
+    release = found["candidates"][0]["release"]
+    print(f"written: {out / 'input.csv'}, {out / 'next.yaml'}, design.md and design.json in {out}\n"
+          "next: record it, then fit with it:\n"
+          f"  furuta-cosim rig run --input {out / 'input.csv'} --board BOARD -o {out / 'rig'}"
+          + (f" --keep-zero  (lift the pendulum {release:g} rad and let go as it starts)" if release else "")
+          + f"\n  furuta-cosim identify {out / 'next.yaml'}")
     return 0
 
 
@@ -575,15 +584,28 @@ def cmd_rig_run(args) -> int:
     from furuta_cosim.rig.board import board_for
     from furuta_cosim.rig.runner import run_rig
 
+    controller = args.controller
+    if args.input is not None:
+        from furuta_cosim.rig.playback import Playback, load_input
+
+        if controller is not None or args.scenario is not None:
+            raise ConfigError(["--input: plays its table open loop: give no controller and no --scenario"])
+        period, volts = load_input(args.input)
+        controller = Playback(volts, period, name=Path(args.input).stem)
+        if args.duration is None:
+            args.duration = controller.duration
+    elif controller is None:
+        raise ConfigError(["controller: give a controller file, or --input FILE to play a voltage table"])
     if (args.duration is None) == (args.scenario is None):
         raise ConfigError(["--duration: give --duration SECONDS or --scenario SCENARIO, one of them"])
     plant = load_plant(args.plant)
-    out = output_folder(Path(args.output or Path("runs") / "rig" / Path(str(args.controller)).stem))
+    name = Path(args.input).stem if args.input is not None else Path(str(controller)).stem
+    out = output_folder(Path(args.output or Path("runs") / "rig" / name))
     board = board_for(args.board, plant, log=out / "board.csv", seed=args.seed)
     bar = Progress(delay=0.0, unit="s")
     try:
-        summary = run_rig(args.controller, board, plant, out, duration=args.duration, scenario=args.scenario,
-                          watchdog=args.watchdog, rate_filter=args.rate_filter,
+        summary = run_rig(controller, board, plant, out, duration=args.duration, scenario=args.scenario,
+                          watchdog=args.watchdog, rate_filter=args.rate_filter, zero=not args.keep_zero,
                           log=lambda line: (bar.close(), print(line, file=sys.stderr)),
                           progress=lambda t, total: bar("rig", int(t), int(round(total)), ""))
     finally:
@@ -818,13 +840,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dask", metavar="ADDRESS", help="simulate on a Dask scheduler, or 'local'")
     p.add_argument("--resume", action="store_true",
                    help="go on with the stopped run in -o from its last finished stage")
+    p.add_argument("--starts", type=int, default=1,
+                   help="fit from this many starts (the spec's, then a Latin hypercube around it) and keep "
+                        "the lowest cost (default 1)")
+    p.add_argument("--no-profiles", action="store_true",
+                   help="skip the profile likelihoods (their intervals and verdicts): the fit alone")
+    p.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                   help="N replicates of a block bootstrap of the residuals: a third interval (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="the multi-start's design and the bootstrap's draws")
     p.add_argument("--json", action="store_true", help="print fit.json")
     p.set_defaults(handler=cmd_identify)
+
+    p = commands.add_parser("design-experiment",
+                            help="rank excitations by what they would add to a fit; write the best to play on the rig")
+    p.add_argument("spec", help="the identify spec of the fit")
+    p.add_argument("--fit", required=True, metavar="DIR", help="the fit's run directory (identify -o DIR)")
+    p.add_argument("-o", "--output", metavar="DIR", help="where to write (default runs/design/<spec>)")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds of the experiment (default 10)")
+    p.add_argument("--focus", metavar="NAMES",
+                   help="comma-separated free parameters to rank for (default: every free parameter)")
+    p.add_argument("--voltage", type=float, help="the largest voltage (default: the plant's limits.voltage)")
+    p.add_argument("--arm", type=float, help="the arm's limit in rad (default: the plant's limits.theta0); "
+                                             "candidates keep within 60 %% of it in simulation")
+    p.add_argument("--seed", type=int, default=0, help="the PRBS candidates' draws")
+    p.add_argument("--json", action="store_true", help="print design.json")
+    p.set_defaults(handler=cmd_design_experiment)
 
     p = commands.add_parser("rig", help="run controllers on a rig: a board in real time")
     rigs = p.add_subparsers(dest="rig", required=True, metavar="ACTION")
     q = rigs.add_parser("run", help="run a controller on a board, log every sample, leave the rig at 0 V")
-    q.add_argument("controller", help="controller file or name (a swing-up-and-balance file too)")
+    q.add_argument("controller", nargs="?",
+                   help="controller file or name (a swing-up-and-balance file too); none with --input")
+    q.add_argument("--input", metavar="CSV",
+                   help="play this voltage table (t,V; design-experiment writes one) open loop instead")
+    q.add_argument("--keep-zero", action="store_true",
+                   help="keep the board's counts from before instead of zeroing them (a free swing "
+                        "released by hand: zero hanging, lift, start, let go)")
     from furuta_cosim.rig.board import BOARDS
     from furuta_cosim.rig import quanser, virtual  # noqa: F401 - their boards, for the help
     q.add_argument("--board", default="virtual", metavar="NAME[:OPTIONS]",
@@ -881,7 +932,8 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "from_fit: samples": "--samples", "from_fit: seed": "--variants-seed", "from_fit": "--from-fit",
          "model": "--model", "duration": "--duration", "scenario": "--scenario",
          "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board",
-         "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait"}
+         "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait", "starts": "--starts",
+         "bootstrap": "--bootstrap"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

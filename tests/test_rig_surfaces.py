@@ -138,7 +138,7 @@ def test_a_budget_that_runs_out_at_the_end_of_a_stage_gives_the_fit_so_far(tmp_p
     """285 simulations are spent exactly as stage 1 ends: stage 2 evaluates nothing. This was
     `min() arg is an empty sequence` after all the work."""
     spec = _shipped_spec(tmp_path, max_simulations=285)
-    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1")
+    code, out, err = run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1")
     assert code == 0, err
     assert "the budget was spent before it began" in err
     assert "note: stopped at max_simulations (285) in stage 2/5" in out
@@ -151,10 +151,10 @@ def test_a_budget_that_runs_out_at_the_end_of_a_stage_gives_the_fit_so_far(tmp_p
 def test_a_killed_identify_resumes_to_the_uninterrupted_fit(tmp_path):
     spec = _shipped_spec(tmp_path)
     whole, stopped = tmp_path / "whole", tmp_path / "stopped"
-    done = subprocess.run(CLI + ["identify", str(spec), "-o", str(whole), "--workers", "2"],
+    done = subprocess.run(CLI + ["identify", "--no-profiles", str(spec), "-o", str(whole), "--workers", "2"],
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
-    process = subprocess.Popen(CLI + ["identify", str(spec), "-o", str(stopped), "--workers", "2"],
+    process = subprocess.Popen(CLI + ["identify", "--no-profiles", str(spec), "-o", str(stopped), "--workers", "2"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     checkpoint = stopped / "identify-checkpoint.json"
     deadline = time.monotonic() + 300
@@ -168,7 +168,7 @@ def test_a_killed_identify_resumes_to_the_uninterrupted_fit(tmp_path):
     process.kill()
     process.wait()
     assert not (stopped / "fit.json").exists()
-    done = subprocess.run(CLI + ["identify", str(spec), "-o", str(stopped), "--resume", "--workers", "1"],
+    done = subprocess.run(CLI + ["identify", "--no-profiles", str(spec), "-o", str(stopped), "--resume", "--workers", "1"],
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "resumed after stage" in done.stderr
@@ -183,13 +183,13 @@ def test_resume_refuses_a_run_of_other_data_or_nothing_to_resume(tmp_path, capsy
     spec = _shipped_spec(tmp_path)
     out = tmp_path / "fit"
     out.mkdir()
-    line = one_line(capsys, "identify", str(spec), "-o", str(out), "--resume")
+    line = one_line(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--resume")
     assert "nothing to resume" in line
     identity = {"spec": "qube-servo-3", "spec_sha256": "0" * 64, "data": {}, "plant_sha256": None,
                 "fmu_sha256": "", "fmi_version": "2.0"}
     (out / "identify-checkpoint.json").write_text(json.dumps(
         {"identity": identity, "stage": 1, "x": [0.0], "record": [], "simulations": 3}))
-    line = one_line(capsys, "identify", str(spec), "-o", str(out), "--resume")
+    line = one_line(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--resume")
     assert "the spec's content differ from the stopped run's" in line, line
 
 
@@ -198,15 +198,15 @@ def test_identify_refuses_a_folder_that_is_not_its_run_and_leaves_nothing_stale(
     other = tmp_path / "other"
     other.mkdir()
     (other / "notes.txt").write_text("mine")
-    line = one_line(capsys, "identify", str(spec), "-o", str(other), "--workers", "1")
+    line = one_line(capsys, "identify", "--no-profiles", str(spec), "-o", str(other), "--workers", "1")
     assert "holds files that are not a run of identify qube-servo-3" in line
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
     out = tmp_path / "fit"
-    assert run_cli(capsys, "identify", str(spec), "-o", str(out), "--workers", "1")[0] == 0
+    assert run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--workers", "1")[0] == 0
     (out / "old-overlay.png").write_text("a figure of an experiment the spec no longer has")
     (out / ".fit.json.0123456789abcdef.partial").write_text("left by a killed write")
     first = sorted(p.name for p in out.iterdir())
-    assert run_cli(capsys, "identify", str(spec), "-o", str(out), "--workers", "1")[0] == 0
+    assert run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--workers", "1")[0] == 0
     after = sorted(p.name for p in out.iterdir())
     assert "old-overlay.png" not in after and not [n for n in after if n.endswith(".partial")]
     assert set(after) == set(first) - {"old-overlay.png", ".fit.json.0123456789abcdef.partial"}
@@ -218,7 +218,7 @@ def test_identify_on_workers_leaves_no_folder_in_the_temporary_directory(tmp_pat
     spec = _shipped_spec(tmp_path, max_simulations=60)
     temporary = tmp_path / "tmp"
     temporary.mkdir()
-    done = subprocess.run(CLI + ["identify", str(spec), "-o", str(tmp_path / "fit"), "--workers", "2"],
+    done = subprocess.run(CLI + ["identify", "--no-profiles", str(spec), "-o", str(tmp_path / "fit"), "--workers", "2"],
                           capture_output=True, text=True, timeout=300, env={**os.environ, "TMPDIR": str(temporary)})
     assert done.returncode == 0, done.stderr
     assert list(temporary.iterdir()) == []
@@ -234,7 +234,7 @@ def test_the_fit_is_written_before_the_figures(tmp_path, monkeypatch):
     monkeypatch.setattr(run, "_figures", broken)
     spec = _shipped_spec(tmp_path, max_simulations=30)
     with pytest.raises(OSError):
-        run.identify(spec, tmp_path / "fit")
+        run.identify(spec, tmp_path / "fit", profiles=False)
     assert (tmp_path / "fit" / "fit.json").is_file() and (tmp_path / "fit" / "plant.yaml").is_file()
     assert not (tmp_path / "fit" / "identify-checkpoint.json").exists()
 
@@ -254,7 +254,8 @@ def test_a_parameter_the_data_do_not_see_is_reported_without_an_interval(tmp_pat
     stop = json.loads((tmp_path / "fit" / "fit.json").read_text())["parameters"]["K_stop"]
     assert stop["identifiable"] is False and stop["interval"] is None and stop["stderr"] is None
     assert stop["value"] == 1.0  # kept at its start: the data said nothing
-    assert "K_stop" in out and "not identifiable from these experiments" in out
+    assert "K_stop" in out and "structurally not identifiable" in out
+    assert "the data do not depend on it" in json.dumps(stop["verdict"])
     assert yaml.safe_load((tmp_path / "fit" / "plant.yaml").read_text())["parameters"]["K_stop"] == 1.0
     r_a = json.loads((tmp_path / "fit" / "fit.json").read_text())["parameters"]["R_a"]
     assert r_a["identifiable"] is True and r_a["interval"][0] < r_a["value"] < r_a["interval"][1]

@@ -218,12 +218,15 @@ class Problem:
         upper = np.array([u.bounds[1] / u.scale for u in self.items])
         return np.where(x + h > upper, -h, h)
 
-    def jac(self, x: np.ndarray) -> np.ndarray:
+    def jac(self, x: np.ndarray, columns=None) -> np.ndarray:
+        """The forward-difference Jacobian at ``x``, of every unknown or of ``columns`` (a
+        profile holds one unknown fixed)."""
         x = np.asarray(x, dtype=float)
         h = self.steps(x)
-        shifted = [x + np.eye(len(x))[j] * h[j] for j in range(len(x))]
+        columns = range(len(x)) if columns is None else columns
+        shifted = [x + np.eye(len(x))[j] * h[j] for j in columns]
         results = self._evaluate([x] + shifted)
-        return np.column_stack([(r - results[0]) / hj for r, hj in zip(results[1:], h)])
+        return np.column_stack([(r - results[0]) / h[j] for r, j in zip(results[1:], columns)])
 
     def outputs_at(self, x: np.ndarray, experiments: Sequence[Experiment], offset: int = 0) -> list:
         tasks = [(offset + k, None, self.values(x)) for k in range(len(experiments))]
@@ -307,6 +310,7 @@ class FitResult:
     cost: float
     message: str
     unseen: tuple = ()             # unknowns the data do not depend on (not identifiable)
+    optima: list = None            # a multi-start's distinct optima (lowest cost first)
 
     def document(self) -> dict:
         """fit.json: every value with its interval, the correlations, the residuals."""
@@ -347,7 +351,10 @@ class FitResult:
                                   "samples": e.samples}
                          for e in self.spec.experiments + self.spec.validation},
                 "stages": self.stages, "simulations": self.simulations,
-                "seconds": self.seconds, "cost": self.cost, "message": self.message}
+                "seconds": self.seconds, "cost": self.cost, "message": self.message,
+                "starts": {"count": sum(len(o["starts"]) for o in self.optima or []) or 1,
+                           "optima": [{"cost": o["cost"], "values": o["values"], "starts": o["starts"]}
+                                      for o in self.optima or []]}}
 
 
 def _sha(path) -> str:
@@ -357,17 +364,73 @@ def _sha(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def start_points(items, count: int, seed: int = 0) -> list[np.ndarray]:
+    """``count`` starts in scaled units: the spec's own first, then a Latin hypercube (scipy's,
+    seeded) around it over the plant parameters, each within a factor of 10 of its start (on a
+    log scale, for a positive start and bounds) or a quarter of its bounds' width, inside the
+    bounds; free initial states and biases keep their start."""
+    from scipy.stats import qmc
+
+    x0 = np.array([u.start / u.scale for u in items])
+    if count <= 1:
+        return [x0]
+    unit = qmc.LatinHypercube(d=len(items), seed=np.random.default_rng([seed, 3])).random(count - 1)
+    found = [x0]
+    for row in unit:
+        x = x0.copy()
+        for k, u in enumerate(items):
+            if "." in u.name:
+                continue
+            lo, hi = u.bounds
+            if u.start > 0 and lo >= 0:
+                a, b = math.log(max(lo, u.start / 10.0, 1e-300)), math.log(min(hi, u.start * 10.0))
+                value = math.exp(a + row[k] * (b - a))
+            else:
+                half = 0.25 * (hi - lo)
+                a, b = max(lo, u.start - half), min(hi, u.start + half)
+                value = a + row[k] * (b - a)
+            x[k] = min(max(value, lo), hi) / u.scale
+        found.append(x)
+    return found
+
+
+# two optima of a multi-start are the same when their costs and every value agree this closely
+SAME_COST, SAME_VALUE = 1e-6, 1e-3
+
+
+def distinct_optima(optima: list[dict], items) -> list[dict]:
+    """The optima of a multi-start, the same ones merged: each with its cost, values and the
+    starts that reached it, the lowest cost first."""
+    found: list[dict] = []
+    cost_of = lambda o: o["cost"] if math.isfinite(o["cost"]) else math.inf  # noqa: E731
+    for k, o in sorted(enumerate(optima), key=lambda pair: (cost_of(pair[1]), pair[0])):
+        x = np.array(o["x"])
+        for group in found:
+            y = np.array(group["x"])
+            if math.isfinite(o["cost"]) and \
+                    abs(o["cost"] - group["cost"]) <= SAME_COST * max(abs(group["cost"]), 1e-300) and \
+                    np.all(np.abs(x - y) <= SAME_VALUE * np.maximum(np.abs(y), 1.0)):
+                group["starts"].append(k)
+                break
+        else:
+            found.append({"cost": float(o["cost"]), "x": list(map(float, x)), "starts": [k],
+                          "values": {u.name: float(v) * u.scale for u, v in zip(items, x)},
+                          "message": o.get("message", "")})
+    return found
+
+
 def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | None = None,
         progress: Callable[[str, int, float], None] = lambda stage, n, cost: None,
         log: Callable[[str], None] = lambda line: None, resume: dict | None = None,
-        on_stage: Callable[[dict], None] = lambda state: None) -> FitResult:
+        on_stage: Callable[[dict], None] = lambda state: None, starts: int = 1, seed: int = 0) -> FitResult:
     """Fit the spec's free parameters on ``target``; see the module docstring.
 
-    ``on_stage(state)`` is called after every finished stage with what a later call needs to
-    go on from there (``resume=state``): the next stage, the values, the stages' record and
-    the simulations spent. A resumed fit gives the fit an uninterrupted one gives."""
-    from scipy.optimize import least_squares
-
+    With ``starts`` > 1 the staged fit runs from each of :func:`start_points` (``seed``: their
+    design), each with the spec's budget; the lowest cost is kept and the distinct optima
+    found are reported. ``on_stage(state)`` is called after every finished stage with what a
+    later call needs to go on from there (``resume=state``): the start and stage, the values,
+    the stages' record, the optima so far and the simulations spent. A resumed fit gives the
+    fit an uninterrupted one gives."""
     started = time.perf_counter()
     check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free),
                 str(spec.path))
@@ -376,48 +439,54 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     items = unknowns(spec, plant_values)
     everything = list(spec.experiments) + list(spec.validation)
     runner = Runner(target, everything, workers, dask)
-    x = np.array([u.start / u.scale for u in items])
-    x0 = x.copy()
+    points = start_points(items, starts, seed)
+    x0 = points[0].copy()
     lower = np.array([u.bounds[0] / u.scale for u in items])
     upper = np.array([u.bounds[1] / u.scale for u in items])
-    plan, record, message, first_stage = stages(spec), [], "", 0
+    plan = stages(spec)
+    state = {"start": 0, "stage": 0, "x": None, "record": [], "message": "", "optima": []}
     try:
         start_outputs = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None) \
             .outputs_at(x0, everything)
         if resume is not None:  # its count holds these start runs already
-            first_stage, x = int(resume["stage"]), np.array(resume["x"], dtype=float)
-            record, runner.count = list(resume["record"]), int(resume["simulations"])
-            message = str(resume.get("message", ""))
+            state.update({k: resume[k] for k in ("stage", "x", "record", "message") if k in resume})
+            state["start"], state["optima"] = int(resume.get("start", 0)), list(resume.get("optima", []))
+            runner.count = int(resume["simulations"])
         failed = [f"{e.path}: the simulation fails at the start values: {why}"
                   for e, (_, why) in zip(everything, start_outputs) if why]
         if failed:
             raise ConfigError(failed)
-        for k, horizon in enumerate(plan):
-            if k < first_stage or message.startswith("stopped"):
-                continue
-            label = f"stage {k + 1}/{len(plan)} ({'whole windows' if horizon is None else f'first {horizon:g} s'})"
-            problem = Problem(runner, spec.experiments, items, horizon, spec.max_simulations,
-                              lambda n, cost, label=label: progress(label, n, cost))
-            before = runner.count
-            try:
-                result = least_squares(problem.fun, x, jac=problem.jac, bounds=(lower, upper),
-                                       x_scale="jac", method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10)
-                x, message = result.x, str(result.message)
-                cost = float(result.cost)
-            except BudgetSpent:
-                message = f"stopped at max_simulations ({spec.max_simulations}) in {label}"
-                best = _best(problem)
-                if best is not None:  # else the budget ran out as the stage began: the last x stands
-                    x, cost = best, problem.best_cost
-                else:
-                    cost = math.nan
-            record.append({"horizon": horizon, "cost": cost, "simulations": runner.count - before})
-            log(f"  {label}: " + (f"cost {cost:.6g} after {runner.count - before} simulations"
-                                  if runner.count > before else "the budget was spent before it began"))
-            if message.startswith("stopped"):
-                log(f"  {message}: the fit is the best point so far")
-            on_stage({"stage": k + 1, "x": [float(v) for v in x], "record": record,
-                      "simulations": runner.count, "message": message})
+        for s in range(state["start"], len(points)):
+            resumed = s == state["start"] and state["x"] is not None
+            x = np.array(state["x"], dtype=float) if resumed else points[s].copy()
+            first = int(state["stage"]) if resumed else 0
+            record = list(state["record"]) if resumed else []
+            message = str(state["message"]) if resumed else ""
+            budget = (int(state.get("budget_from", 0)) if resumed else runner.count) + spec.max_simulations
+            if len(points) > 1:
+                log(f"  start {s + 1}/{len(points)}" + (" (the spec's)" if s == 0 else ""))
+            for k, horizon in enumerate(plan):
+                if k < first or message.startswith("stopped"):
+                    continue
+                x, message = _stage(runner, spec, items, x, lower, upper, k, plan, budget, record,
+                                    message, progress, log, f" of start {s + 1}" if len(points) > 1 else "")
+                state = {"start": s, "stage": k + 1, "x": [float(v) for v in x], "record": record,
+                         "message": message, "optima": state["optima"], "budget_from": budget - spec.max_simulations}
+                on_stage({**state, "simulations": runner.count})
+            cost = record[-1]["cost"] if record else math.nan
+            state["optima"] = state["optima"] + [{"x": [float(v) for v in x], "cost": float(cost),
+                                                  "message": message, "record": record}]
+            state.update({"start": s + 1, "stage": 0, "x": None, "record": [], "message": ""})
+            on_stage({**state, "simulations": runner.count})
+        optima = distinct_optima(state["optima"], items)
+        chosen = min(range(len(state["optima"])),
+                     key=lambda k: (state["optima"][k]["cost"] if math.isfinite(state["optima"][k]["cost"])
+                                    else math.inf, k))
+        x = np.array(state["optima"][chosen]["x"], dtype=float)
+        record, message = state["optima"][chosen]["record"], state["optima"][chosen]["message"]
+        if len(points) > 1:
+            log(f"  {len(points)} starts reached {len(optima)} distinct optim{'um' if len(optima) == 1 else 'a'}: "
+                + "; ".join(f"cost {o['cost']:.6g} from {len(o['starts'])} start(s)" for o in optima))
         final = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
         J = final.jac(x)
         r = final.fun(x)
@@ -457,7 +526,38 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     return FitResult(spec, target, items, {u.name: u.start for u in items}, values, covariance,
                      plain, windows, scored, held, before, simulated, record,
                      simulations, time.perf_counter() - started, float(0.5 * r @ r), message,
-                     tuple(items[k].name for k in unseen))
+                     tuple(items[k].name for k in unseen), optima)
+
+
+def _stage(runner, spec, items, x, lower, upper, k: int, plan, budget: int, record: list, message: str,
+           progress, log, which: str) -> tuple[np.ndarray, str]:
+    """Stage ``k`` of the plan from ``x``: least squares on that horizon, within ``budget``
+    simulations in all; its record appended. Returns the stage's values and message."""
+    from scipy.optimize import least_squares
+
+    horizon = plan[k]
+    label = f"stage {k + 1}/{len(plan)}{which} ({'whole windows' if horizon is None else f'first {horizon:g} s'})"
+    problem = Problem(runner, spec.experiments, items, horizon, budget,
+                      lambda n, cost: progress(label, n, cost))
+    before = runner.count
+    try:
+        result = least_squares(problem.fun, x, jac=problem.jac, bounds=(lower, upper),
+                               x_scale="jac", method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        x, message = result.x, str(result.message)
+        cost = float(result.cost)
+    except BudgetSpent:
+        message = f"stopped at max_simulations ({spec.max_simulations}) in {label}"
+        best = _best(problem)
+        if best is not None:  # else the budget ran out as the stage began: the last x stands
+            x, cost = best, problem.best_cost
+        else:
+            cost = math.nan
+    record.append({"horizon": horizon, "cost": cost, "simulations": runner.count - before})
+    log(f"  {label}: " + (f"cost {cost:.6g} after {runner.count - before} simulations"
+                          if runner.count > before else "the budget was spent before it began"))
+    if message.startswith("stopped"):
+        log(f"  {message}: the fit is the best point so far")
+    return x, message
 
 
 # a column of the weighted Jacobian (in scaled units) this much smaller than the largest is

@@ -76,7 +76,8 @@ def _figures(out: Path, experiment: Experiment, simulated: dict) -> list[Path]:
 
 
 def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, dask: str | None = None,
-             fmi_version: str = "2.0", resume: bool = False, progress=lambda stage, n, cost: None,
+             fmi_version: str = "2.0", resume: bool = False, starts: int = 1, profiles: bool = True,
+             bootstrap: int = 0, seed: int = 0, progress=lambda stage, n, cost: None,
              log: Callable[[str], None] = lambda line: None) -> dict:
     """Fit the plant parameters of an identify spec to its experiments and write the run
     directory: ``plant.yaml`` (the fitted plant) and ``fit.json`` first, then ``report.html``
@@ -97,8 +98,18 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         The FMI version of the plant FMU the fit simulates: ``"2.0"`` or ``"3.0"``.
     resume : bool
         Go on with the run in ``output`` that was stopped (killed, interrupted) from its last
-        finished stage: the same fit as an uninterrupted run. Refused when the spec, its data,
-        the plant or the FMU differ from the run's.
+        finished stage (or profile): the same fit as an uninterrupted run. Refused when the
+        spec, its data, the plant, the FMU or these options differ from the run's.
+    starts : int
+        Fit from this many starts (the spec's, then a Latin hypercube around it) and keep the
+        lowest cost; the distinct optima found are reported.
+    profiles : bool
+        Profile each free plant parameter (identify/profile.py): a likelihood-ratio interval
+        and a verdict (identifiable, practically or structurally not identifiable).
+    bootstrap : int
+        Replicates of a block bootstrap of the residuals (identify/bootstrap.py; 0: none).
+    seed : int
+        The multi-start's design and the bootstrap's draws.
     progress : callable
         ``progress(stage, simulations, cost)``, called as the fit goes.
     log : callable
@@ -107,12 +118,15 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     Returns
     -------
     dict
-        The ``fit.json`` document: values, intervals, correlations, residuals.
+        The ``fit.json`` document: values, intervals, verdicts, correlations, residuals.
     """
+    from furuta_cosim.errors import ConfigError
     from furuta_cosim.identify.replay import target_for
 
-    from furuta_cosim.errors import ConfigError
-
+    for name, value, low, high in (("starts", starts, 1, 1000), ("bootstrap", bootstrap, 0, 100_000),
+                                   ("seed", seed, 0, 2**32 - 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ConfigError([f"{name}: expected a whole number from {low} to {high}, got {value!r}"])
     spec = load_identify_spec(spec_name)
     out = output_folder(output)
     try:
@@ -124,21 +138,48 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free), str(spec.path))
     check_ranges(spec, target)
     identity = _identity(spec, target, fmi_version)
+    identity["options"] = {"starts": starts, "profiles": bool(profiles), "bootstrap": bootstrap, "seed": seed}
     state = _claim(out, spec, identity, resume)
     log(f"identify {spec.name}: {len(spec.free)} parameters of {target.label} on "
         f"{', '.join(e.name for e in spec.experiments)}"
         + (f"; validation {', '.join(e.name for e in spec.validation)}" if spec.validation else "")
+        + (f"; {starts} starts" if starts > 1 else "")
         + (f"; resumed after stage {state['stage']}" if state else ""))
+    saved = {"fit": state, "profiles": (state or {}).get("profiles", {})}
 
-    def checkpoint(progress_state: dict) -> None:
-        write_text(out / CHECKPOINT, dumps({"identity": identity, **progress_state}, indent=1) + "\n")
+    def checkpoint() -> None:
+        write_text(out / CHECKPOINT, dumps({"identity": identity, **(saved["fit"] or {}),
+                                            "profiles": saved["profiles"]}, indent=1) + "\n")
+
+    def fitted(progress_state: dict) -> None:
+        saved["fit"] = progress_state
+        checkpoint()
+
+    def profiled(name: str, found: dict) -> None:
+        saved["profiles"][name] = found
+        checkpoint()
 
     result = fit(spec, target, workers=workers, dask=dask, progress=progress, log=log,
-                 resume=state, on_stage=checkpoint)
+                 resume=state, on_stage=fitted, starts=starts, seed=seed)
     document = result.document()
+    if profiles:
+        from furuta_cosim.identify.profile import profile_all
+
+        found = profile_all(spec, target, result, workers=workers, dask=dask, done=saved["profiles"],
+                            progress=progress, log=log, on_profile=profiled)
+        _with_profiles(document, found)
+    if bootstrap:
+        from furuta_cosim.identify.bootstrap import bootstrap_all
+
+        resampled = bootstrap_all(spec, target, result, replicates=bootstrap, seed=seed, workers=workers,
+                                  dask=dask, progress=progress, log=log)
+        _with_bootstrap(document, resampled)
     document["spec_sha256"] = identity["spec_sha256"]
+    document["options"] = identity["options"]
     figures_of = [(e, result.simulated[e.name]) for e in spec.experiments + spec.validation]
     document["figures"] = [f"{e.name}-{kind}.png" for e, _ in figures_of for kind in ("overlay", "residuals")]
+    if profiles:
+        document["figures"].append("profiles.png")
     document["files"] = sorted(["plant.yaml", "fit.json", "report.html"] + document["figures"]
                                + [str(Path(p).with_suffix(".svg")) for p in document["figures"]])
     # the fit first, so that a full disk or a kill while drawing keeps it
@@ -149,8 +190,35 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     (out / CHECKPOINT).unlink(missing_ok=True)
     for experiment, pair in figures_of:
         _figures(out, experiment, {"start": pair["start"], "fitted": pair["fit"]})
+    if profiles:
+        from furuta_cosim.report.rig import plot_profiles
+
+        plot_profiles(document["parameters"], out / "profiles")
     write_text(out / "report.html", report_page(document, out))
     return document
+
+
+def _with_profiles(document: dict, found: dict) -> None:
+    """fit.json with each profiled parameter's profile, its likelihood-ratio interval and its
+    verdict; a parameter that is not identifiable in the profile's sense is marked so
+    (``identifiable: false``: tune --from-fit holds it at its value)."""
+    for name, profile in found.items():
+        entry = document["parameters"][name]
+        entry["profile"] = {k: profile[k] for k in ("values", "rise", "threshold", "simulations")}
+        entry["interval_profile"] = profile["interval"]
+        entry["verdict"] = profile["verdict"] + (f": {profile['why']}" if profile.get("why") else "")
+        entry["identifiable"] = profile["verdict"] == "identifiable"
+    document["interval_profile_method"] = (
+        "profile likelihood: the cost with the parameter held and every other unknown fitted again; "
+        "95 % where it rises less than chi2(1, 0.95) / 2 times the residual variance, scaled by the "
+        "parameter's sandwich-to-textbook variance ratio (Chandler and Bate 2007)")
+
+
+def _with_bootstrap(document: dict, resampled: dict) -> None:
+    for name, entry in resampled["parameters"].items():
+        document["parameters"][name]["interval_bootstrap"] = entry["interval"]
+        document["parameters"][name]["stderr_bootstrap"] = entry["stderr"]
+    document["bootstrap"] = {k: resampled[k] for k in ("replicates", "seed", "blocks", "method")}
 
 
 CHECKPOINT = "identify-checkpoint.json"  # the finished stages of a run that has not ended
@@ -207,16 +275,25 @@ def _claim(out: Path, spec, identity: dict, resume: bool) -> dict | None:
         if not isinstance(saved, dict):
             raise ConfigError([f"resume: {out / CHECKPOINT} is not a checkpoint of identify {spec.name}"])
         _same(out / CHECKPOINT, saved.get("identity"), identity)
+        count = len(spec.free) + sum(len(e.free_starts()) for e in spec.experiments)
         try:
-            state = {"stage": int(saved["stage"]), "x": [float(v) for v in saved["x"]],
+            state = {"start": int(saved.get("start", 0)), "stage": int(saved["stage"]),
+                     "x": None if saved["x"] is None else [float(v) for v in saved["x"]],
                      "record": list(saved["record"]), "simulations": int(saved["simulations"]),
-                     "message": str(saved.get("message", ""))}
+                     "message": str(saved.get("message", "")),
+                     "budget_from": int(saved.get("budget_from", 0)),
+                     "optima": [{"x": [float(v) for v in o["x"]], "cost": float(o["cost"]),
+                                 "message": str(o.get("message", "")), "record": list(o["record"])}
+                                for o in saved.get("optima", [])],
+                     "profiles": _profiles_read(saved.get("profiles"))}
         except (KeyError, TypeError, ValueError):
             raise ConfigError([f"resume: {out / CHECKPOINT}: damaged (stage, x, record, "
                                "simulations expected)"]) from None
-        if len(state["x"]) != len(spec.free) + sum(len(e.free_starts()) for e in spec.experiments):
-            raise ConfigError([f"resume: {out / CHECKPOINT}: holds {len(state['x'])} values, the "
-                               "spec has another number of free unknowns"])
+        lengths = [len(state["x"])] if state["x"] is not None else []
+        lengths += [len(o["x"]) for o in state["optima"]]
+        if any(n != count for n in lengths):
+            raise ConfigError([f"resume: {out / CHECKPOINT}: holds values of another number of "
+                               f"unknowns than the spec's {count}"])
         return state
     if entries and not ours:
         raise ConfigError([f"output {out}: holds files that are not a run of identify {spec.name} "
@@ -226,9 +303,32 @@ def _claim(out: Path, spec, identity: dict, resume: bool) -> dict | None:
     listed = earlier.get("files", []) if isinstance(earlier, dict) else []
     for name in entries:
         if name in listed or name == CHECKPOINT or name.endswith(".partial") \
+                or name in ("profiles.png", "profiles.svg") \
                 or name.endswith(("-overlay.png", "-overlay.svg", "-residuals.png", "-residuals.svg")):
             (out / name).unlink(missing_ok=True)
     return None
+
+
+def _profiles_read(saved) -> dict:
+    """Profiles a checkpoint holds, each only if whole (a damaged one is computed again)."""
+    import math
+
+    from furuta_cosim.identify.profile import VERDICTS
+
+    found = {}
+    for name, p in (saved or {}).items() if isinstance(saved, dict) else ():
+        try:
+            numbers = [float(v) for v in p["values"] + p["rise"]]
+            interval = p["interval"]
+            whole = (p["verdict"] in VERDICTS and len(p["values"]) == len(p["rise"]) >= 1
+                     and all(math.isfinite(v) for v in numbers)
+                     and (interval is None or (len(interval) == 2 and all(
+                         v is None or math.isfinite(float(v)) for v in interval))))
+        except (KeyError, TypeError, ValueError):
+            whole = False
+        if whole and isinstance(name, str):
+            found[name] = p
+    return found
 
 
 def _same(where: Path, saved, identity: dict) -> None:
@@ -238,7 +338,7 @@ def _same(where: Path, saved, identity: dict) -> None:
         raise ConfigError([f"resume: {where}: records no identity of its run"])
     words = {"spec_sha256": "the spec's content", "data": "the logs (their sha256)",
              "plant_sha256": "the plant's values", "fmu_sha256": "the plant FMU",
-             "fmi_version": "the FMI version"}
+             "fmi_version": "the FMI version", "options": "the options (starts, profiles, bootstrap, seed)"}
     for key, what in words.items():
         if saved.get(key) != identity.get(key):
             raise ConfigError([f"resume: {what} differ from the stopped run's ({where}); run "
@@ -271,17 +371,67 @@ def plant_text(result: FitResult, out: Path) -> str:
     return head + yaml.safe_dump(document, sort_keys=False)
 
 
+def _bounds_text(interval) -> str:
+    """``[lo, hi]``, a side the profile never crossed said so."""
+    if interval is None:
+        return "none"
+    lo, hi = interval
+    return (f"[{'to its bound' if lo is None else format(lo, '.4g')}, "
+            f"{'to its bound' if hi is None else format(hi, '.4g')}]")
+
+
+def parameter_rows(document: dict) -> list[list[str]]:
+    """Per unknown: name, start, fitted, each interval fit.json has, the verdict (text cells)."""
+    bootstrap = any("interval_bootstrap" in p for p in document["parameters"].values())
+    rows = [["parameter", "start", "fitted", "sandwich 95 %", "profile 95 %"]
+            + (["bootstrap 95 %"] if bootstrap else []) + ["verdict"]]
+    for name, p in document["parameters"].items():
+        fitted = f"{p['value']:.5g}" + (" (at a bound)" if p.get("at_bound") else "")
+        row = [name, f"{p['start']:.5g}", fitted, _bounds_text(p["interval"]),
+               _bounds_text(p["interval_profile"]) if "interval_profile" in p else "not profiled"]
+        if bootstrap:
+            row.append(_bounds_text(p.get("interval_bootstrap")) if "interval_bootstrap" in p else "")
+        rows.append(row + [p["verdict"]])
+    return rows
+
+
+def summary_text(document: dict, out: Path) -> str:
+    """What ``identify`` prints: the values and intervals, the verdicts, the optima of a
+    multi-start, the pairs not separable, the residuals."""
+    rows = parameter_rows(document)
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]) - 1)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(r[:-1], widths)) + "  " + r[-1] for r in rows]
+    optima = (document.get("starts") or {}).get("optima") or []
+    if len(optima) > 1:
+        lines.append(f"{document['starts']['count']} starts, {len(optima)} distinct optima: "
+                     + "; ".join(f"cost {o['cost']:.6g} ({len(o['starts'])} start(s))" for o in optima)
+                     + "; the lowest is kept")
+    elif document.get("starts", {}).get("count", 1) > 1:
+        lines.append(f"{document['starts']['count']} starts, all at the same optimum")
+    for a, b, r in document["not_separable"]:
+        lines.append(f"not separable: {a} and {b} (correlation {r:+.3f})")
+    for kind in ("experiments", "validation"):
+        for name, outputs in document[kind].items():
+            for output, c in outputs.items():
+                start = document["at_start"][name][output]["rms"]
+                period = c.get("period", {}).get("error")
+                lines.append(f"{'validation ' if kind == 'validation' else ''}{name} {output}: RMS {start:.4g} -> "
+                             f"{c['rms']:.4g}" + (f" ({c['rms'] * 57.29577951308232:.4g} deg)"
+                                                  if output.startswith("theta") else "")
+                             + ("" if period is None else f", period {100 * period:+.3f} %"))
+    lines.append(f"{document['simulations']} simulations in {document['seconds']:.1f} s; "
+                 f"plant.yaml, fit.json and report.html in {out}")
+    if document["message"].startswith("stopped"):
+        lines.append(f"note: {document['message']}: the fit is the best point found within the budget")
+    return "\n".join(lines) + "\n"
+
+
 def report_page(document: dict, out: Path) -> str:
     from furuta_cosim.report.html import figure, markdown_to_html, page
 
-    rows = ["| parameter | start | fitted | 95 % interval | stderr | plain stderr |", "|---|---|---|---|---|---|"]
-    for name, p in document["parameters"].items():
-        if p["interval"] is None:
-            rows.append(f"| {name} | {p['start']:.5g} | {p['value']:.5g} | none: {p['verdict']} | | |")
-            continue
-        lo, hi = p["interval"]
-        rows.append(f"| {name} | {p['start']:.5g} | {p['value']:.5g}{' (at a bound)' if p['at_bound'] else ''} "
-                    f"| [{lo:.4g}, {hi:.4g}] | {p['stderr']:.3g} | {p['stderr_plain']:.3g} |")
+    table = parameter_rows(document)
+    rows = ["| " + " | ".join(table[0]) + " |", "|" + "---|" * len(table[0])]
+    rows += ["| " + " | ".join(r) + " |" for r in table[1:]]
     fits = ["| experiment | output | RMS at start | RMS fitted | period error fitted |", "|---|---|---|---|---|"]
     for kind in ("experiments", "validation"):
         for name, outputs in document[kind].items():
@@ -292,11 +442,22 @@ def report_page(document: dict, out: Path) -> str:
                             f"{start:.4g} | {c['rms']:.4g} | {'' if period is None else f'{100 * period:+.3f} %'} |")
     pairs = "".join(f"- {a} and {b}: correlation {r:+.3f}, not separable on these data\n"
                     for a, b, r in document["not_separable"]) or "- none above 0.95\n"
+    methods = f"Intervals: sandwich, {document['interval_method']}."
+    if document.get("interval_profile_method"):
+        methods += f" Profile, {document['interval_profile_method']}."
+    if document.get("bootstrap"):
+        methods += f" Bootstrap, {document['bootstrap']['method']} ({document['bootstrap']['replicates']} replicates)."
+    optima = (document.get("starts") or {}).get("optima") or []
+    starts = ""
+    if document.get("starts", {}).get("count", 1) > 1:
+        starts = (f"\n## Starts\n\n{document['starts']['count']} starts reached {len(optima)} distinct "
+                  "optima (the lowest kept):\n\n" + "".join(
+                      f"- cost {o['cost']:.6g} from {len(o['starts'])} start(s)\n" for o in optima))
     text = (f"# identify {document['name']}\n\n"
             f"Plant {document['plant']}; {document['simulations']} simulations in "
             f"{document['seconds']:.1f} s; {document['message']}\n\n" + "\n".join(rows) + "\n\n"
-            f"Intervals: {document['interval_method']}. The plain column is the textbook "
-            "s^2 (J^T J)^-1, which assumes independent residuals.\n\n## Correlated pairs\n\n" + pairs
+            + methods + " The textbook s^2 (J^T J)^-1, which assumes independent residuals, is in "
+            "fit.json (stderr_plain).\n" + starts + "\n## Correlated pairs\n\n" + pairs
             + "\n## Residuals (SI units: rad, A)\n\n" + "\n".join(fits) + "\n")
     data = ["| experiment | file | samples | window [s] | sha256 |", "|---|---|---|---|---|"]
     data += [f"| {name} | {d['file']} | {d['samples']} | {d['window'][0]:g} to {d['window'][1]:g} | {d['sha256'][:16]} |"

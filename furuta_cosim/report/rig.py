@@ -67,3 +67,40 @@ def plot_residuals(t: np.ndarray, measured: Mapping[str, np.ndarray],
         axis.set_ylabel(f"{name} error [{unit}]" if unit else f"{name} error")
         axis.grid(alpha=0.3)
     return _finish(figure, axes, path, title)
+
+
+def plot_profiles(parameters: Mapping[str, Mapping], path: str | Path) -> list[Path]:
+    """One small panel per profiled parameter (fit.json's ``parameters``): the cost's rise over
+    its minimum against the parameter's value, the threshold of the 95 % interval, the
+    likelihood-ratio interval where the profile crosses it and the sandwich interval beside it,
+    titled with the verdict."""
+    names = [name for name, p in parameters.items() if p.get("profile")]
+    if not names:
+        return []
+    columns = min(3, len(names))
+    rows = -(-len(names) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.7 * rows), squeeze=False)
+    for axis in axes.flat[len(names):]:
+        axis.set_visible(False)
+    for axis, name in zip(axes.flat, names):
+        p = parameters[name]
+        profile = p["profile"]
+        values, rise = np.asarray(profile["values"]), np.asarray(profile["rise"])
+        axis.plot(values, rise, "o-", ms=3, lw=1.0, label="profile")
+        if profile.get("threshold"):
+            axis.axhline(profile["threshold"], color="0.4", ls="--", lw=0.8, label="95 % threshold")
+        if p.get("interval"):
+            axis.axvspan(*p["interval"], color="C1", alpha=0.15, label="sandwich 95 %")
+        for edge in p.get("interval_profile") or ():
+            if edge is not None:
+                axis.axvline(edge, color="C2", lw=1.0)
+        axis.axvline(p["value"], color="k", lw=0.6)
+        axis.set_title(f"{name}: {p['verdict'].split(':')[0]}", fontsize="small")
+        axis.set_xlabel(name, fontsize="small")
+        axis.set_ylabel("cost rise", fontsize="small")
+        axis.tick_params(labelsize="x-small")
+        axis.grid(alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize="x-small")
+    figure.suptitle("profile likelihoods (green: where the profile crosses the threshold)", fontsize="small")
+    figure.tight_layout()
+    return _save(figure, path, dpi=110)

@@ -294,6 +294,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
 
 def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, code, reason, failed,
            started_wall, runtime, limits, scenario) -> dict:
+    from furuta_cosim.config import plain_name
     from furuta_cosim.metrics import regulation_settling
     from furuta_cosim.swingup import wrap
 
@@ -303,7 +304,8 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
     write_text(out / "log.csv", "\n".join(lines) + "\n")
     counts = float(plant.sensors.get("encoder_counts", 2048))
     experiment = {
-        "name": "rig-run", "description": f"{name} on the {board.name} board, {status}: {reason}",
+        # named after its folder (two runs fitted together need two names)
+        "name": out.name if plain_name(out.name) and len(out.name) <= 64 else "rig-run", "description": f"{name} on the {board.name} board, {status}: {reason}",
         "data": "log.csv", "header": 1, "columns": list(COLUMNS), "time": "t",
         "inputs": {"V": {"column": "V", "unit": "V"}},
         "outputs": {"theta0": {"column": "theta0", "unit": "rad", "quantum": 2 * math.pi / counts},

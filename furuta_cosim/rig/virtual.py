@@ -172,7 +172,8 @@ class VirtualBoard(Board):
     name = "virtual"
     description = ("the rig stand-in: a plant FMU stepped in real time in a process of its own, "
                    "read and driven as a QUBE's board (options: fast, to run it as fast as it can; "
-                   "delay=SECONDS, 0.001 by default; amplifier=VOLTS, 15 by default)")
+                   "delay=SECONDS, 0.001 by default; amplifier=VOLTS, 15 by default; pendulum=RAD, "
+                   "the pendulum held that far from hanging at the start, for a free swing)")
     has_current = True
 
     def __init__(self, plant, *, paced: bool = True, log: Path | None = None, amplifier: float = AMPLIFIER,
@@ -195,7 +196,8 @@ class VirtualBoard(Board):
     @classmethod
     def from_argument(cls, argument: str, plant=None, **options) -> "VirtualBoard":
         """``virtual[:OPTION,...]``: ``fast`` (as fast as it can), ``delay=SECONDS`` (from a write
-        to the motor), ``amplifier=VOLTS`` (its range)."""
+        to the motor), ``amplifier=VOLTS`` (its range), ``pendulum=RAD`` (held that far from
+        hanging when the run starts, then let go: a free swing, run with the counts kept)."""
         if plant is None:
             raise ConfigError(["board: the virtual board runs a plant: give `plant`"])
         paced = options.pop("paced", True)
@@ -204,14 +206,18 @@ class VirtualBoard(Board):
             if item == "fast":
                 paced = False
                 continue
-            bounds = {"delay": (0.0, 0.1), "amplifier": (0.1, 1000.0)}.get(name)
+            bounds = {"delay": (0.0, 0.1), "amplifier": (0.1, 1000.0), "pendulum": (-3.0, 3.0)}.get(name)
             try:
                 value = float(text) if equals and bounds else math.nan
             except ValueError:
                 value = math.nan
             if bounds is None or not bounds[0] <= value <= bounds[1]:
                 raise ConfigError([f"board: virtual:{argument}: {item!r}: expected fast, delay=SECONDS "
-                                   "(0 to 0.1) or amplifier=VOLTS (0.1 to 1000), separated by commas"])
+                                   "(0 to 0.1), amplifier=VOLTS (0.1 to 1000) or pendulum=RAD (-3 to 3), "
+                                   "separated by commas"])
+            if name == "pendulum":
+                options.setdefault("overrides", {})["theta1_start"] = math.pi + value
+                continue
             options[name] = value
         return cls(plant, paced=paced, **options)
 
