@@ -506,7 +506,8 @@ def cmd_replay(args) -> int:
                      + ("none simulated" if period["simulated"] is None else
                         f"{period['simulated']:.5g} s simulated ({100 * period['error']:+.3f} %)")
                      if period else "")
-            print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{shown}")
+            print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{shown}"
+                  + ("  (its loop closed)" if entry.get("loop") == "closed" else ""))
     if args.output:
         print(f"figures and replay.json in {args.output}")
     failed = any("failure" in e for e in document["experiments"].values())

@@ -115,3 +115,20 @@ class RuntimeEstimator:
 
     def __reduce__(self):
         return (RuntimeEstimator, self._made_from)
+
+
+def runtime_for(cfile, period: float, where: str = "the rig"):
+    """(the controller file checked for a 5-state plant at ``period``, its runtime): the
+    controller discretized at ``period`` and compiled, inside its swing-up when the file has
+    one. A rig runs it so (rig/runner.py), and a replay that closes the loop of a rig's log
+    (identify/replay.py)."""
+    from furuta_cosim.controllers import fit
+    from furuta_cosim.design.controller import discretize_controller
+    from furuta_cosim.swingup import SwingUpRuntime
+
+    cfile = fit(cfile, plant=where, states=5, period=period if cfile.controller.discrete else None)
+    runtime = RuntimeController(discretize_controller(cfile.controller, period),
+                                cfile.F if cfile.F is not None else 1.0)
+    if cfile.swingup is not None:
+        runtime = SwingUpRuntime(runtime, cfile.swingup)
+    return cfile, runtime

@@ -25,6 +25,7 @@ from furuta_cosim.config import Checker, Frozen, excerpt, load_yaml, plain_name
 from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
+from furuta_cosim.measurement import RATE_FILTER
 
 # unit -> factor to SI (rad, rad/s, A, V, s): value_SI = (value + offset) * factor
 UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi, "rad/s": 1.0,
@@ -36,7 +37,8 @@ MAX_CSV_BYTES = 200_000_000
 UNIFORM_TOLERANCE = 0.01
 LINE = "\0line"  # read_csv's entry for the line number of each row in the file
 _KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
-         "outputs", "start", "parameters", "delimiter", "rig")
+         "outputs", "start", "parameters", "delimiter", "rig", "loop")
+_LOOP_KEYS = ("controller", "reference", "rate_filter", "voltage", "counts", "delay")
 _SIGNAL_KEYS = ("column", "unit", "scale", "offset")
 
 
@@ -62,6 +64,23 @@ class Free:
 
 
 @dataclass(frozen=True)
+class Loop:
+    """The controller that ran while a log was recorded, as the replay closes it again: its
+    file (and the file's sha256), the reference it followed at each sample of the window (None:
+    0), the rates' filter (Hz), the voltage limit it was clipped to (None: none) and the
+    encoders' counts per revolution (what the controller saw of the angles), the board's
+    transport delay."""
+
+    controller: Path
+    sha256: str
+    reference: np.ndarray | None
+    rate_filter: float
+    voltage: float | None
+    counts: float
+    delay: float = 0.0           # s: from a command's write to the motor (the board's transport delay)
+
+
+@dataclass(frozen=True)
 class Experiment:
     """A checked experiment: ``t`` the window's sample times (s), ``period`` their spacing."""
 
@@ -77,6 +96,7 @@ class Experiment:
     start: Mapping[str, float | Free]
     parameters: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
     units: Mapping[str, str] = field(default_factory=lambda: Frozen({}))  # input/output -> its unit key
+    loop: Loop | None = None     # the controller in the loop: the replay closes it (inputs unused)
 
     @property
     def samples(self) -> int:
@@ -108,7 +128,10 @@ class Experiment:
 
         inputs = {k: v if np.isscalar(v) else v[:keep] for k, v in self.inputs.items()}
         outputs = {k: replace(m, values=m.values[:keep]) for k, m in self.outputs.items()}
-        return replace(self, t=self.t[:keep], inputs=Frozen(inputs), outputs=Frozen(outputs))
+        loop = self.loop
+        if loop is not None and loop.reference is not None:
+            loop = replace(loop, reference=loop.reference[:keep])
+        return replace(self, t=self.t[:keep], inputs=Frozen(inputs), outputs=Frozen(outputs), loop=loop)
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -150,6 +173,7 @@ def load_experiment(path: str | Path) -> Experiment:
     outputs = _outputs(check, top["outputs"], table, columns, keep)
     start = _start(check, top.get("start", {}), outputs)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
+    loop = _loop(check, top["loop"], path, table, columns, keep) if "loop" in top else None
     if "rig" in top:  # what `rig run` records of the run (its board, controller, period): for people
         check.mapping(top["rig"], "rig", optional=tuple(top["rig"]) if isinstance(top["rig"], dict) else ())
     for state in start:
@@ -163,7 +187,38 @@ def load_experiment(path: str | Path) -> Experiment:
         units.update({str(n): e["unit"] for n, e in section.items() if isinstance(e, dict) and "unit" in e})
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
-                      Frozen(outputs), Frozen(start), parameters, Frozen(units))
+                      Frozen(outputs), Frozen(start), parameters, Frozen(units), loop)
+
+
+def _loop(check: Checker, value, path: Path, table, columns, keep) -> Loop | None:
+    """``loop:``: the controller file (beside the experiment file), the reference column, the
+    rates' filter, the voltage limit, the encoders' counts (the keys ``rig run`` writes)."""
+    entry = check.mapping(value, "loop", required=("controller",), optional=_LOOP_KEYS)
+    if entry is None:
+        return None
+    text = check.string(entry.get("controller"), "loop.controller")
+    controller = None
+    if text is not None:
+        controller = Path(text) if Path(text).is_absolute() else path.parent / text
+        if not controller.is_file():
+            check.fail("loop.controller", f"{controller}: no such controller file")
+            controller = None
+    reference = None
+    if "reference" in entry:
+        name = check.string(entry["reference"], "loop.reference")
+        if name is not None and name not in columns:
+            check.fail("loop.reference", f"{excerpt(name)} is not one of columns ({', '.join(columns)})")
+        elif name is not None:
+            reference = table[name][keep].copy()
+    rate = check.number(entry.get("rate_filter", RATE_FILTER), "loop.rate_filter", minimum=0.1, maximum=1e4)
+    voltage = entry.get("voltage")
+    if voltage is not None:
+        voltage = check.number(voltage, "loop.voltage", positive=True, maximum=1e4)
+    counts = check.number(entry.get("counts", 2048), "loop.counts", minimum=4, maximum=2 ** 31, integer=True)
+    delay = check.number(entry.get("delay", 0.0), "loop.delay", minimum=0.0, maximum=1.0)
+    check.done()
+    return Loop(controller, hashlib.sha256(controller.read_bytes()).hexdigest(), reference, float(rate),
+                None if voltage is None else float(voltage), float(counts), float(delay))
 
 
 def _csv_path(check: Checker, value, path: Path) -> Path | None:

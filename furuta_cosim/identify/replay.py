@@ -221,7 +221,10 @@ def overrides(target: Target, experiment: Experiment, values: Mapping[str, float
 def simulate(session, target: Target, experiment: Experiment,
              values: Mapping[str, float] | None = None) -> dict[str, np.ndarray]:
     """The experiment's outputs as the plant gives them at every sample of its window, in the
-    experiment's (SI) units; raises SimulationFailed when the run cannot reach its end."""
+    experiment's (SI) units; raises SimulationFailed when the run cannot reach its end. With a
+    ``loop`` the controller that ran closes the loop again (:func:`closed_loop`)."""
+    if experiment.loop is not None:
+        return closed_loop(session, target, experiment, values)[0]
     names = list(experiment.outputs)
     inputs = list(experiment.inputs)
     fmu_out = [target.output(n) for n in names]
@@ -283,3 +286,75 @@ def compare(experiment: Experiment, simulated: Mapping[str, np.ndarray]) -> dict
                                "error": None if p_simulated is None else p_simulated / p_measured - 1.0}
         found[name] = entry
     return found
+
+
+_RUNTIMES: dict = {}   # (controller file, its sha256, period) -> (file, runtime), in this process
+
+
+def _runtime(loop, period: float):
+    key = (str(loop.controller), loop.sha256, period)
+    if key not in _RUNTIMES:
+        from furuta_cosim.controllers import load_controller
+        from furuta_cosim.cosim.runtime import runtime_for
+
+        _RUNTIMES.clear()  # one loop at a time is the usual case; a fit of several rebuilds
+        _RUNTIMES[key] = runtime_for(load_controller(loop.controller), period, where="the log's loop")
+    return _RUNTIMES[key][1]
+
+
+def closed_loop(session, target: Target, experiment: Experiment,
+                values: Mapping[str, float] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """(outputs, the voltage the controller gave) of the experiment with its loop closed: at
+    each sample the controller sees what it saw on the rig (the angles as the encoders count
+    them, rates by the same filter, the current), its command is clipped to the loop's
+    voltage limit and held over the sample (furuta_cosim.measurement; rig/runner.py). Its
+    state and the rates' filter start at zero at the window's start. A ``delay`` (the board's
+    transport delay) holds the last command for that long into each sample."""
+    import math as _math
+
+    from furuta_cosim.measurement import RateFilter, counted
+
+    loop = experiment.loop
+    runtime = _runtime(loop, experiment.period)
+    runtime.reset()
+    names = list(experiment.outputs)
+    seen = ["theta0", "theta1", "i"]
+    fmu_out = [target.output(n) for n in names + seen]
+    v_name, v_scale, v_offset = target.input("V")
+    n = experiment.samples
+    raw = np.full((n, len(names)), np.nan)
+    volts = np.zeros(n)
+    reference = loop.reference if loop.reference is not None else np.zeros(n)
+    per_count = 2.0 * _math.pi / loop.counts
+    rates = RateFilter(experiment.period, loop.rate_filter)
+    limit, delay, held = loop.voltage, loop.delay, 0.0
+    if not 0.0 <= delay < experiment.period:
+        raise ConfigError([f"{experiment.path}: loop.delay: {delay:g} s is not shorter than the log's "
+                           f"period ({experiment.period:g} s)"])
+    try:
+        session.reset(parameters=overrides(target, experiment, values or {}), start_time=float(experiment.t[0]))
+        session.set_io(inputs=[v_name], outputs=[v for v, _, _ in fmu_out])
+        y = session.get([v for v, _, _ in fmu_out])
+        for k in range(n):
+            si = [value * scale + offset for value, (_, scale, offset) in zip(y, fmu_out)]
+            raw[k] = si[:len(names)]
+            theta0, theta1, current = si[len(names):]
+            if not all(_math.isfinite(v) for v in si):
+                break
+            a0, a1 = counted(theta0, 0.0, per_count), counted(theta1, _math.pi, per_count)
+            r0, r1 = rates((a0, a1))
+            u = float(runtime.control([a0, r0, a1, r1, current], float(reference[k])))
+            if limit is not None:
+                u = max(-limit, min(limit, u))
+            volts[k] = u
+            if k < n - 1:
+                if delay > 0.0:  # the last command reaches the motor for the first part of the sample
+                    session.step([(held - v_offset) / v_scale], delay)
+                y = session.step([(u - v_offset) / v_scale], experiment.period - delay)
+                held = u
+    except FmuError as error:
+        raise SimulationFailed(str(error)) from None
+    if not np.all(np.isfinite(raw)) or not np.all(np.isfinite(volts)):
+        k = int(np.argmax(~(np.all(np.isfinite(raw), axis=1) & np.isfinite(volts))))
+        raise SimulationFailed(f"{target.label}: the closed loop is not finite at t = {experiment.t[k]:g} s")
+    return {name: raw[:, j] for j, name in enumerate(names)}, volts

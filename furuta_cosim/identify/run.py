@@ -9,6 +9,7 @@ An identify run directory holds ``plant.yaml`` (a plant file every command takes
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -24,8 +25,9 @@ from furuta_cosim.identify.spec import load_identify_spec
 
 
 def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None) -> dict:
-    """Each experiment's logged inputs run open loop on ``target``: per output its RMS error
-    (SI units) and, where it oscillates, its period.
+    """Each experiment's logged inputs run open loop on ``target`` (or, for a log with a
+    ``loop:``, the controller that ran closing the loop again): per output its RMS error (SI
+    units) and, where it oscillates, its period.
 
     Parameters
     ----------
@@ -54,6 +56,7 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                 document["experiments"][experiment.name] = {"failure": str(error)}
                 continue
             entry = {"file": str(experiment.path), "samples": experiment.samples,
+                     "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
             if out is not None:
                 entry["figures"] = [p.name for p in _figures(out, experiment, {target.label: simulated})]
@@ -145,6 +148,10 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         + (f"; validation {', '.join(e.name for e in spec.validation)}" if spec.validation else "")
         + (f"; {starts} starts" if starts > 1 else "")
         + (f"; resumed after stage {state['stage']}" if state else ""))
+    for e in spec.experiments + spec.validation:
+        if e.loop is not None:
+            log(f"note: {e.name}: fitted on its logged voltage, open loop (a fit does not close a "
+                "log's loop; replay does)")
     saved = {"fit": state, "profiles": (state or {}).get("profiles", {})}
 
     def checkpoint() -> None:
@@ -165,15 +172,20 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     if profiles:
         from furuta_cosim.identify.profile import profile_all
 
+        clock = time.perf_counter()
         found = profile_all(spec, target, result, workers=workers, dask=dask, done=saved["profiles"],
                             progress=progress, log=log, on_profile=profiled)
         _with_profiles(document, found)
+        document["profiles"] = {"simulations": sum(p.get("simulations", 0) for p in found.values()),
+                                "seconds": time.perf_counter() - clock}
     if bootstrap:
         from furuta_cosim.identify.bootstrap import bootstrap_all
 
+        clock = time.perf_counter()
         resampled = bootstrap_all(spec, target, result, replicates=bootstrap, seed=seed, workers=workers,
                                   dask=dask, progress=progress, log=log)
         _with_bootstrap(document, resampled)
+        document["bootstrap"]["seconds"] = time.perf_counter() - clock
     document["spec_sha256"] = identity["spec_sha256"]
     document["options"] = identity["options"]
     figures_of = [(e, result.simulated[e.name]) for e in spec.experiments + spec.validation]
@@ -421,6 +433,12 @@ def summary_text(document: dict, out: Path) -> str:
                              + ("" if period is None else f", period {100 * period:+.3f} %"))
     lines.append(f"{document['simulations']} simulations in {document['seconds']:.1f} s; "
                  f"plant.yaml, fit.json and report.html in {out}")
+    if document.get("profiles"):
+        lines.append(f"profiles: {document['profiles']['simulations']} simulations in "
+                     f"{document['profiles']['seconds']:.1f} s")
+    if document.get("bootstrap"):
+        lines.append(f"bootstrap: {document['bootstrap']['replicates']} replicates in "
+                     f"{document['bootstrap']['seconds']:.1f} s")
     if document["message"].startswith("stopped"):
         lines.append(f"note: {document['message']}: the fit is the best point found within the budget")
     return "\n".join(lines) + "\n"

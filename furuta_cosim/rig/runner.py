@@ -34,6 +34,7 @@ import yaml
 from furuta_cosim.documents import dumps
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import folder as make_folder, output_folder, write_text
+from furuta_cosim.measurement import RATE_FILTER, RateFilter
 from furuta_cosim.rig.board import Board
 from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TERMINATED, TRIPPED, Limits,
                                          Supervisor, Trip)
@@ -41,7 +42,6 @@ from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TERMINATED, TRIP
 COLUMNS = ("t", "late", "compute", "r", "V_command", "V", "theta0", "theta1", "i", "dtheta0",
            "dtheta1", "arm_counts", "pendulum_counts", "mode", "phase")
 # mode: 0 swinging up, 1 the controller; phase: 0 for a plain run, a trial's phase (rig/trial.py)
-RATE_FILTER = 40.0       # Hz: the rates' filtered difference
 WATCHDOG = 0.1           # s: the board's watchdog timeout
 MAX_DURATION = 3600.0    # s: one run at most (its log is kept in memory)
 LATE_WARNING = 0.1       # a sample later than this fraction of the period is worth a warning
@@ -50,10 +50,8 @@ LATE_WARNING = 0.1       # a sample later than this fraction of the period is wo
 def controller_for(controller, period: float | None = None, scenario=None):
     """(controller file, runtime controller, reference times and values, period) for a rig
     run: on a scenario's reference and duration (its timing and delay), or regulating at 0."""
-    from furuta_cosim.controllers import fit, load_controller
-    from furuta_cosim.cosim.runtime import RuntimeController
-    from furuta_cosim.design.controller import discretize_controller
-    from furuta_cosim.swingup import SwingUpRuntime
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.cosim.runtime import runtime_for
 
     if scenario is not None:
         from furuta_cosim.cosim import prepare
@@ -69,11 +67,7 @@ def controller_for(controller, period: float | None = None, scenario=None):
     period = period or cfile.period or cfile.controller.period
     if not period:
         raise ConfigError([f"{cfile.source}: period: missing (a rig runs a controller at its period)"])
-    cfile = fit(cfile, plant="the rig", states=5, period=period if cfile.controller.discrete else None)
-    runtime = RuntimeController(discretize_controller(cfile.controller, period),
-                                cfile.F if cfile.F is not None else 1.0)
-    if cfile.swingup is not None:
-        runtime = SwingUpRuntime(runtime, cfile.swingup)
+    cfile, runtime = runtime_for(cfile, period)
     return cfile, runtime, None, None, period
 
 
@@ -134,20 +128,47 @@ def home(board: Board, plant, output: str | Path, *, timeout: float = 20.0, peri
                    duration=timeout, zero=False, log=log)
 
 
-class _Rates:
-    """Filtered differences of the two angles (bilinear ``w s / (s + w)``)."""
+class _AtSamples:
+    """Ctrl-C and SIGTERM held until the next sample starts (in the main thread): raised
+    inside a board's call (the virtual board steps its plant in this process) they could leave
+    it between two states; raised at a sample's start the runner stops as it always does."""
 
-    def __init__(self, period: float, hz: float):
-        w = 2.0 * math.pi * hz
-        self.a, self.b = (2.0 - w * period) / (2.0 + w * period), 2.0 * w / (2.0 + w * period)
-        self.last = None
-        self.rates = [0.0, 0.0]
+    def __init__(self):
+        import signal
+        import threading
 
-    def __call__(self, angles):
-        if self.last is not None:
-            self.rates = [self.a * r + self.b * (a - p) for r, a, p in zip(self.rates, angles, self.last)]
-        self.last = angles
-        return self.rates
+        self.pending, self.previous = None, {}
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for number in (signal.SIGINT, signal.SIGTERM):
+            self.previous[number] = signal.getsignal(number)
+            signal.signal(number, self._hold)
+
+    def _hold(self, number, _frame) -> None:
+        if self.pending is not None:  # a second one: a board's call hangs; stop now
+            self.pending = number
+            self.deliver()
+        self.pending = number
+
+    def deliver(self) -> None:
+        import signal
+
+        if self.pending is None:
+            return
+        number, self.pending = self.pending, None
+        handler = self.previous.get(number)
+        if handler is signal.SIG_IGN:
+            return
+        if callable(handler):
+            handler(number, None)   # the CLI's SIGTERM or Python's Ctrl-C: raises
+        raise KeyboardInterrupt()   # the default handler: stop as for Ctrl-C
+
+    def restore(self) -> None:
+        import signal
+
+        for number, handler in self.previous.items():
+            signal.signal(number, handler)
+        self.previous = {}
 
 
 def run_rig(controller, board: Board, plant, output: str | Path, *, duration: float | None = None,
@@ -217,7 +238,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     counts = float(plant.sensors.get("encoder_counts", 2048))
     signs = (float(plant.sensors.get("arm_sign", 1)), float(plant.sensors.get("pendulum_sign", 1)))
     per_count = 2.0 * math.pi / counts
-    rates = _Rates(period, rate_filter)
+    rates = RateFilter(period, rate_filter)
     rows = np.full((steps, len(COLUMNS)), np.nan)
     mode = getattr(runtime, "mode", None)
     status, code, reason, failed = "finished", FINISHED, f"ran its {steps * period:g} s", []
@@ -226,6 +247,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     board.open()  # a board that cannot be opened drove nothing: one error, no run folder
     make_folder(out, root=True)
     started_wall = time.time()
+    signals = _AtSamples()
     try:
         if zero:
             board.zero_encoders()
@@ -238,6 +260,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         for k in range(steps):
             deadline = start + k * period
             woke = clock.wait_until(deadline)
+            signals.deliver()  # a Ctrl-C or SIGTERM that came during the last sample, now
             reading = board.read()
             theta0 = signs[0] * reading.arm * per_count
             theta1 = math.pi + signs[1] * reading.pendulum * per_count  # zeroed hanging
@@ -280,20 +303,21 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         reason = f"{type(error).__name__}: {error}"
         raise
     finally:
+        signals.restore()
         failed = board.safe()
         try:
             board.close()
         except Exception as error:  # noqa: BLE001 - the rig is safe; the log is what matters now
             failed.append(f"close: {type(error).__name__}: {error}")
         summary = _write(out, rows[:done], cfile, board, plant, period, status, code, reason, failed,
-                         started_wall, runtime, limits, scenario)
+                         started_wall, runtime, limits, scenario, rate_filter)
         log(f"{'stopped' if code else 'done'}: {reason}; the rig is at 0 V with the amplifier "
             f"{'off' if not failed else 'in an unknown state: ' + '; '.join(failed)}")
     return summary
 
 
 def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, code, reason, failed,
-           started_wall, runtime, limits, scenario) -> dict:
+           started_wall, runtime, limits, scenario, rate_filter) -> dict:
     from furuta_cosim.config import plain_name
     from furuta_cosim.metrics import regulation_settling
     from furuta_cosim.swingup import wrap
@@ -313,6 +337,14 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
         "start": {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
         "rig": {"board": board.name, "controller": kept or name, "period": period, "status": status},
     }
+    if kept is not None:  # the loop that ran, for a replay that closes it again
+        experiment["loop"] = {"controller": kept, "reference": "r", "rate_filter": rate_filter,
+                              "counts": int(counts)}
+        if limits.voltage is not None:
+            experiment["loop"]["voltage"] = limits.voltage
+        delay = getattr(board, "settings", {}).get("delay")  # known for the virtual board only
+        if delay:
+            experiment["loop"]["delay"] = float(delay)
     if board.has_current:
         experiment["outputs"]["i"] = {"column": "i", "unit": "A",
                                       "noise": float(plant.sensors.get("current_noise", 0.004)) or 0.004}

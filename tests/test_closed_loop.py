@@ -1,0 +1,89 @@
+"""A rig run's log replayed with its loop closed: the controller that ran (its file kept in the
+run folder), the reference it followed, the rates' filter, the voltage limit and the board's
+delay, as the experiment file's `loop:` names them; a bad `loop:` is one line."""
+
+import math
+
+import pytest
+import yaml
+
+from helpers import one_line
+
+QUANTUM = 2 * math.pi / 2048
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from helpers import run_cli  # noqa: F401 (the CLI as a user runs it, in-process)
+    from furuta_cosim.cli import main
+
+    out = tmp_path_factory.mktemp("loop") / "run"
+    assert main(["rig", "run", "swingup-qube", "--board", "virtual:fast", "--duration", "4", "-o", str(out)]) == 0
+    return out
+
+
+def _replay(path):
+    from furuta_cosim.identify.replay import target_for
+    from furuta_cosim.identify.run import replay
+
+    return replay([path], target_for(plant="qube-servo-3"))
+
+
+def test_a_swing_up_and_balance_log_replays_with_its_loop_closed(run):
+    loop = yaml.safe_load((run / "experiment.yaml").read_text())["loop"]
+    assert loop == {"controller": "controllers/swingup-qube.yaml", "reference": "r", "rate_filter": 40.0,
+                    "counts": 2048, "voltage": 10.0, "delay": 0.001}
+    closed = _replay(run / "experiment.yaml")
+    assert closed["experiments"]["run"]["loop"] == "closed"
+    rms = {o: c["rms"] for o, c in closed["experiments"]["run"]["outputs"].items()}
+    # the same plant, the same controller, the same sensors: within the encoders' rounding
+    assert rms["theta1"] < 3 * QUANTUM and rms["theta0"] < 5 * QUANTUM, rms
+    document = yaml.safe_load((run / "experiment.yaml").read_text())
+    del document["loop"]
+    document["name"] = "open"
+    (run / "open.yaml").write_text(yaml.safe_dump(document))
+    open_loop = _replay(run / "open.yaml")["experiments"]["open"]["outputs"]
+    assert open_loop["theta1"]["rms"] > 1.0  # driven by the logged voltage alone it falls
+
+
+@pytest.mark.parametrize("change, expected", [
+    ({"controller": "controllers/missing.yaml"}, "loop.controller: "),
+    ({"reference": "nope"}, "loop.reference: 'nope' is not one of columns"),
+    ({"rate_filter": -3}, "loop.rate_filter"),
+    ({"counts": 2.5}, "loop.counts"),
+    ({"surprise": 1}, "loop"),
+])
+def test_a_bad_loop_is_one_line(run, tmp_path, capsys, change, expected):
+    document = yaml.safe_load((run / "experiment.yaml").read_text())
+    document["loop"].update(change)
+    document["data"] = str(run / "log.csv")
+    if "controller" not in change:
+        document["loop"]["controller"] = str(run / document["loop"]["controller"])
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(document))
+    line = one_line(capsys, "replay", str(path), "--plant", "qube-servo-3")
+    assert str(path) in line and expected in line, line
+
+
+def test_a_delay_as_long_as_the_period_is_refused(run, tmp_path, capsys):
+    document = yaml.safe_load((run / "experiment.yaml").read_text())
+    document["loop"]["delay"] = 0.002
+    document["data"] = str(run / "log.csv")
+    document["loop"]["controller"] = str(run / document["loop"]["controller"])
+    path = tmp_path / "late.yaml"
+    path.write_text(yaml.safe_dump(document))
+    line = one_line(capsys, "replay", str(path), "--plant", "qube-servo-3")
+    assert "loop.delay: 0.002 s is not shorter than the log's period" in line, line
+
+
+def test_a_swing_up_file_without_a_description_is_kept_readable(tmp_path):
+    """rig run keeps the controller it ran; a swing-up file with no description was kept as
+    `description: null`, which a replay closing its loop then refused."""
+    from dataclasses import replace
+
+    from furuta_cosim.controllers import load_controller, save_controller
+
+    cfile = replace(load_controller("swingup-qube"), description="")
+    written = save_controller(cfile, tmp_path / "kept.yaml")
+    assert "description" not in yaml.safe_load(written.read_text())
+    assert load_controller(written).swingup is not None
