@@ -299,11 +299,13 @@ def controller_document(cfile: ControllerFile, folder: Path | None = None) -> di
     if cfile.swingup is not None:
         from furuta_cosim.fmu.plants import plant_path
 
-        return {"name": cfile.name, "description": cfile.description or None, "type": "swingup",
-                "balance": _shipped_or_relative(cfile.balance, folder, controller_path),
-                "plant": _shipped_or_relative(cfile.plant, folder, plant_path),
-                "swingup": cfile.swingup.settings(),
-                "provenance": {**cfile.provenance, "tool": f"furuta-cosim {__version__}"}}
+        document = {"name": cfile.name, "description": cfile.description or None, "type": "swingup",
+                    "balance": _shipped_or_relative(cfile.balance, folder, controller_path),
+                    "plant": _shipped_or_relative(cfile.plant, folder, plant_path),
+                    "swingup": cfile.swingup.settings(),
+                    "provenance": {**cfile.provenance, "tool": f"furuta-cosim {__version__}"}}
+        # no `description: null` (a swing-up file without one was written so, and refused when read)
+        return {k: v for k, v in document.items() if v is not None}
     c = cfile.controller
     document = {"name": c.name, "description": cfile.description or None,
                 "type": "static" if c.n_xc == 0 else "generalized",

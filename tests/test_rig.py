@@ -179,9 +179,12 @@ def test_an_exception_or_ctrl_c_leaves_the_rig_safe_with_its_log(tmp_path, error
 
 @pytest.mark.slow
 def test_sigterm_stops_the_run_safely_with_exit_143(tmp_path):
-    controller, scenario = _holding(tmp_path)
+    """As fast as the virtual board can (a real-time run on a loaded machine may trip on a late
+    sample first): a 600 s run takes longer than the 4 s before the signal."""
+    controller, _ = _holding(tmp_path)
     out = tmp_path / "run"
-    process = subprocess.Popen(CLI + ["rig", "run", str(controller), "--scenario", str(scenario), "-o", str(out)],
+    process = subprocess.Popen(CLI + ["rig", "run", str(controller), "--duration", "600", "--board", "virtual:fast",
+                                      "-o", str(out)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)
     process.send_signal(signal.SIGTERM)
