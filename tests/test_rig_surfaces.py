@@ -193,6 +193,7 @@ def test_resume_refuses_a_run_of_other_data_or_nothing_to_resume(tmp_path, capsy
     assert "the spec's content differ from the stopped run's" in line, line
 
 
+@pytest.mark.slow
 def test_identify_refuses_a_folder_that_is_not_its_run_and_leaves_nothing_stale(tmp_path, capsys):
     spec = _shipped_spec(tmp_path, max_simulations=40)
     other = tmp_path / "other"
