@@ -37,8 +37,10 @@ MAX_CSV_BYTES = 200_000_000
 UNIFORM_TOLERANCE = 0.01
 LINE = "\0line"  # read_csv's entry for the line number of each row in the file
 _KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
-         "outputs", "start", "parameters", "delimiter", "rig", "loop")
-_LOOP_KEYS = ("controller", "reference", "rate_filter", "voltage", "counts", "delay")
+         "outputs", "start", "parameters", "delimiter", "rig", "loop", "segments")
+_LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "voltage", "counts", "delay")
+_LAW_KEYS = ("K", "F", "period")
+MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
 _SIGNAL_KEYS = ("column", "unit", "scale", "offset")
 
 
@@ -53,6 +55,7 @@ class Measured:
     sigma: float
     sigma_from: str
     bias: "Free | None" = None   # an unknown zero error of the sensor (SI), fitted
+    quantum: float = 0.0         # the sensor's resolution (SI), 0 when not stated
 
 
 @dataclass(frozen=True)
@@ -66,18 +69,42 @@ class Free:
 @dataclass(frozen=True)
 class Loop:
     """The controller that ran while a log was recorded, as the replay closes it again: its
-    file (and the file's sha256), the reference it followed at each sample of the window (None:
-    0), the rates' filter (Hz), the voltage limit it was clipped to (None: none) and the
-    encoders' counts per revolution (what the controller saw of the angles), the board's
-    transport delay."""
+    file (and the file's sha256), or for a log from another tool a state-feedback ``law``
+    (``u = F r - K x`` on x = theta0, its rate, theta1, its rate, and the current if K has a
+    fifth gain); the reference it followed at each sample of the window (None: 0) and a
+    feedforward added to its command (None: none), the rates' filter (Hz), the voltage limit it
+    was clipped to (None: none), the encoders' counts per revolution (what the controller saw of
+    the angles) and the delay from a sample to its command at the motor (s, any number of
+    samples)."""
 
-    controller: Path
+    controller: Path | None
     sha256: str
     reference: np.ndarray | None
     rate_filter: float
     voltage: float | None
     counts: float
-    delay: float = 0.0           # s: from a command's write to the motor (the board's transport delay)
+    delay: float = 0.0
+    law: tuple | None = None     # (K, F) of a state-feedback law, instead of a controller file
+    feedforward: np.ndarray | None = None
+    # a balancing log: the controller sees its logged angles moved by the simulation's departure
+    # from their estimated true values (identify/estimate.py sets it)
+    estimate: bool = False
+
+    def controller_file(self):
+        """The ControllerFile the replay runs: the file's, or the law's as a static controller."""
+        from furuta_cosim.controllers import ControllerFile, load_controller
+
+        if self.law is None:
+            return load_controller(self.controller)
+        from furuta_cosim.design.controller import GeneralizedController
+
+        K, F = self.law
+        gains = list(K) + [0.0] * (5 - len(K))
+        return ControllerFile(GeneralizedController.static([gains], 0.0, "law"), 0.0,
+                              tracked_output="theta0", F=F)
+
+    def describe(self) -> str:
+        return self.controller.name if self.law is None else f"the law K = {list(self.law[0])}"
 
 
 @dataclass(frozen=True)
@@ -97,6 +124,8 @@ class Experiment:
     parameters: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
     units: Mapping[str, str] = field(default_factory=lambda: Frozen({}))  # input/output -> its unit key
     loop: Loop | None = None     # the controller in the loop: the replay closes it (inputs unused)
+    segments: float = 0.0        # s: fitted by multiple shooting in segments this long (0: whole)
+    alias: str = ""              # a part of a log (identify/split.py): the whole log's name
 
     @property
     def samples(self) -> int:
@@ -111,7 +140,7 @@ class Experiment:
 
     def corrected(self, simulated: Mapping[str, np.ndarray], values: Mapping[str, float]) -> dict:
         """The simulated outputs as the sensors would read them: plus each fitted bias."""
-        return {name: y + values.get(f"{self.name}.{name}.bias", 0.0) for name, y in simulated.items()}
+        return {name: y + values.get(f"{self.alias or self.name}.{name}.bias", 0.0) for name, y in simulated.items()}
 
     def input_at(self, name: str) -> np.ndarray:
         """The input over every sample of the window (a constant repeated)."""
@@ -129,8 +158,9 @@ class Experiment:
         inputs = {k: v if np.isscalar(v) else v[:keep] for k, v in self.inputs.items()}
         outputs = {k: replace(m, values=m.values[:keep]) for k, m in self.outputs.items()}
         loop = self.loop
-        if loop is not None and loop.reference is not None:
-            loop = replace(loop, reference=loop.reference[:keep])
+        if loop is not None:
+            loop = replace(loop, reference=None if loop.reference is None else loop.reference[:keep],
+                           feedforward=None if loop.feedforward is None else loop.feedforward[:keep])
         return replace(self, t=self.t[:keep], inputs=Frozen(inputs), outputs=Frozen(outputs), loop=loop)
 
 
@@ -169,11 +199,16 @@ def load_experiment(path: str | Path) -> Experiment:
         check.fail("window", f"holds {len(t)} sample(s) of {csv.name}: at least 2 are needed")
         check.done()
     period = _uniform(check, t, csv, table[LINE][keep])
-    inputs = _inputs(check, top.get("inputs", {}), table, columns, keep)
+    inputs = _inputs(check, top.get("inputs", {}), table, columns, keep, period)
     outputs = _outputs(check, top["outputs"], table, columns, keep)
     start = _start(check, top.get("start", {}), outputs)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
-    loop = _loop(check, top["loop"], path, table, columns, keep) if "loop" in top else None
+    loop = _loop(check, top["loop"], path, table, columns, keep, period) if "loop" in top else None
+    segments = 0.0
+    if "segments" in top:
+        segments = check.number(top["segments"], "segments", positive=True, maximum=1e6)
+        if segments is not None and segments < 3 * period:
+            check.fail("segments", f"{segments:g} s is shorter than 3 samples ({period:g} s each)")
     if "rig" in top:  # what `rig run` records of the run (its board, controller, period): for people
         check.mapping(top["rig"], "rig", optional=tuple(top["rig"]) if isinstance(top["rig"], dict) else ())
     for state in start:
@@ -187,38 +222,88 @@ def load_experiment(path: str | Path) -> Experiment:
         units.update({str(n): e["unit"] for n, e in section.items() if isinstance(e, dict) and "unit" in e})
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
-                      Frozen(outputs), Frozen(start), parameters, Frozen(units), loop)
+                      Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0))
 
 
-def _loop(check: Checker, value, path: Path, table, columns, keep) -> Loop | None:
-    """``loop:``: the controller file (beside the experiment file), the reference column, the
-    rates' filter, the voltage limit, the encoders' counts (the keys ``rig run`` writes)."""
-    entry = check.mapping(value, "loop", required=("controller",), optional=_LOOP_KEYS)
+def _loop(check: Checker, value, path: Path, table, columns, keep, period: float) -> Loop | None:
+    """``loop:``: the controller file (beside the experiment file) or a state-feedback law, the
+    reference and feedforward columns, the rates' filter, the voltage limit, the encoders'
+    counts, the delay (the keys ``rig run`` writes, and ``law``/``feedforward`` for a log from
+    another tool)."""
+    entry = check.mapping(value, "loop", optional=_LOOP_KEYS)
     if entry is None:
         return None
-    text = check.string(entry.get("controller"), "loop.controller")
-    controller = None
-    if text is not None:
-        controller = Path(text) if Path(text).is_absolute() else path.parent / text
-        if not controller.is_file():
-            check.fail("loop.controller", f"{controller}: no such controller file")
-            controller = None
-    reference = None
-    if "reference" in entry:
-        name = check.string(entry["reference"], "loop.reference")
+    if ("controller" in entry) == ("law" in entry):
+        check.fail("loop", "name the controller that ran: a controller file (`controller`) or a "
+                           "state-feedback law (`law: {K: [...], F: ...}`), one of them")
+        return None
+    controller, law, digest = None, None, ""
+    if "controller" in entry:
+        text = check.string(entry.get("controller"), "loop.controller")
+        if text is not None:
+            controller = Path(text) if Path(text).is_absolute() else path.parent / text
+            if not controller.is_file():
+                check.fail("loop.controller", f"{controller}: no such controller file")
+                controller = None
+            else:
+                digest = hashlib.sha256(controller.read_bytes()).hexdigest()
+    else:
+        law = _law(check, entry["law"], period)
+        digest = hashlib.sha256(repr(law).encode()).hexdigest()
+
+    def column(key: str):
+        if key not in entry:
+            return None
+        name = check.string(entry[key], f"loop.{key}")
         if name is not None and name not in columns:
-            check.fail("loop.reference", f"{excerpt(name)} is not one of columns ({', '.join(columns)})")
+            check.fail(f"loop.{key}", f"{excerpt(name)} is not one of columns ({', '.join(columns)})")
         elif name is not None:
-            reference = table[name][keep].copy()
+            return table[name][keep].copy()
+        return None
+
+    reference, feedforward = column("reference"), column("feedforward")
     rate = check.number(entry.get("rate_filter", RATE_FILTER), "loop.rate_filter", minimum=0.1, maximum=1e4)
     voltage = entry.get("voltage")
     if voltage is not None:
         voltage = check.number(voltage, "loop.voltage", positive=True, maximum=1e4)
     counts = check.number(entry.get("counts", 2048), "loop.counts", minimum=4, maximum=2 ** 31, integer=True)
-    delay = check.number(entry.get("delay", 0.0), "loop.delay", minimum=0.0, maximum=1.0)
+    delay = check.number(entry.get("delay", 0.0), "loop.delay", minimum=0.0)
+    if delay is not None and period and delay > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
+        check.fail("loop.delay", f"{delay:g} s is more than {MAX_DELAY_SAMPLES} samples of the log "
+                                 f"({period:g} s each)")
     check.done()
-    return Loop(controller, hashlib.sha256(controller.read_bytes()).hexdigest(), reference, float(rate),
-                None if voltage is None else float(voltage), float(counts), float(delay))
+    if law is None and controller is None:
+        return None
+    return Loop(controller, digest, reference, float(rate), None if voltage is None else float(voltage),
+                float(counts), float(delay), law, feedforward)
+
+
+def _law(check: Checker, value, period: float) -> tuple | None:
+    """``loop.law``: K (4 gains on theta0, its rate, theta1, its rate; a 5th on the current), F
+    (the reference's gain; K's first by default: the law acts on theta0 - reference) and the
+    period it ran at, which must be the log's."""
+    entry = check.mapping(value, "loop.law", required=("K",), optional=_LAW_KEYS)
+    if not entry or "K" not in entry:
+        return None
+    K = check.vector(entry["K"], "loop.law.K")
+    if K is not None and len(K) not in (4, 5):
+        check.fail("loop.law.K", f"expected 4 gains (theta0, its rate, theta1, its rate) or 5 (and "
+                                 f"the current), got {len(K)}")
+        return None
+    if K is not None and max(abs(k) for k in K) > MAX_MAGNITUDE:
+        check.fail("loop.law.K", f"expected gains of magnitude at most {MAX_MAGNITUDE:g}")
+        return None
+    F = check.number(entry["F"], "loop.law.F") if "F" in entry else (K[0] if K else None)
+    if F is not None and abs(F) > MAX_MAGNITUDE:
+        check.fail("loop.law.F", f"expected a magnitude of at most {MAX_MAGNITUDE:g}, got {F:g}")
+    if "period" in entry:
+        ran = check.number(entry["period"], "loop.law.period", positive=True, maximum=10.0)
+        if ran is not None and period and abs(ran - period) > UNIFORM_TOLERANCE * period:
+            check.fail("loop.law.period", f"the law ran every {ran:g} s but the log's samples are "
+                                          f"{period:g} s apart: the replay closes the loop at the log's samples")
+    if K is None or F is None:
+        return None
+    return tuple(float(k) for k in K), float(F)
 
 
 def _csv_path(check: Checker, value, path: Path) -> Path | None:
@@ -423,7 +508,7 @@ def _signal(check: Checker, entry, key: str, table, columns, keep, extra=()) -> 
     return (table[column][keep] + offset) * factor, abs(factor), section
 
 
-def _inputs(check: Checker, value, table, columns, keep) -> dict:
+def _inputs(check: Checker, value, table, columns, keep, period: float = 0.0) -> dict:
     section = check.mapping(value, "inputs", optional=tuple(value) if isinstance(value, dict) else ())
     found = {}
     for name, entry in (section or {}).items():
@@ -433,9 +518,21 @@ def _inputs(check: Checker, value, table, columns, keep) -> dict:
             if number is not None:
                 found[str(name)] = number
             continue
-        signal = _signal(check, entry, key, table, columns, keep)
-        if signal is not None:
-            found[str(name)] = signal[0]
+        signal = _signal(check, entry, key, table, columns, slice(None), extra=("delay",))
+        if signal is None:
+            continue
+        values, _, raw = signal
+        if "delay" in raw:  # the logged value reaches the plant this much later
+            delay = check.number(raw["delay"], f"{key}.delay", minimum=0.0)
+            if delay is not None and period and delay > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
+                check.fail(f"{key}.delay", f"{delay:g} s is more than {MAX_DELAY_SAMPLES} samples of the log "
+                                           f"({period:g} s each)")
+            elif delay and period:
+                whole = int(math.floor(delay / period + 1e-9))
+                fraction = delay / period - whole
+                now = np.concatenate([np.zeros(min(whole, len(values))), values[:max(len(values) - whole, 0)]])
+                values = (1.0 - fraction) * now + fraction * np.concatenate([[0.0], now[:-1]])
+        found[str(name)] = values[keep]
     return found
 
 
@@ -471,7 +568,7 @@ def _outputs(check: Checker, value, table, columns, keep) -> dict[str, Measured]
                 check.fail(f"{key}.bias.free", f"expected [lo, hi] with lo < 0 < hi, got {bounds}")
             elif bounds is not None:
                 bias = Free((bounds[0] * factor, bounds[1] * factor), 0.0)
-        found[str(name)] = Measured(raw["column"], values, sigma, source, bias)
+        found[str(name)] = Measured(raw["column"], values, sigma, source, bias, float(quantum * factor))
     return found
 
 

@@ -30,6 +30,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from furuta_cosim.errors import ConfigError
+from furuta_cosim.identify.estimate import prepared
 from furuta_cosim.identify.experiment import Experiment
 from furuta_cosim.identify.replay import SimulationFailed, Target, check_names, simulate
 from furuta_cosim.identify.spec import IdentifySpec
@@ -47,20 +48,8 @@ _CONTEXT: dict = {}
 
 
 def _set_context(target: Target, experiments: Sequence[Experiment]) -> None:
-    _CONTEXT["target"], _CONTEXT["experiments"] = target, [_open(e) for e in experiments]
+    _CONTEXT["target"], _CONTEXT["experiments"] = target, list(experiments)
     _CONTEXT["cut"] = {}
-
-
-def _open(experiment: Experiment) -> Experiment:
-    """A fit drives every experiment by its logged input, a closed-loop log too (its ``loop``
-    is for replay): with the controller in the simulation the outputs of a balancing log are a
-    staircase in the parameters (the encoders' rounding drives its limit cycle) and a
-    finite-difference Jacobian is noise; without the rounding the limit cycle is gone from the
-    model but not from the data. Measured on virtual-board logs of the QUBE: neither fit found
-    the plant's values (C0 at its bound, I_a six times too large)."""
-    from dataclasses import replace
-
-    return experiment if experiment.loop is None else replace(experiment, loop=None)
 
 
 def _experiment(index: int, horizon: float | None) -> Experiment:
@@ -171,7 +160,9 @@ def unknowns(spec: IdentifySpec, plant_values: Mapping[str, float]) -> list[Unkn
         found.append(Unknown(p.name, start, p.bounds, _scale(start, p.bounds)))
     for experiment in spec.experiments:
         for state, free in experiment.free_starts().items():  # states and sensor biases
-            found.append(Unknown(f"{experiment.name}.{state}", free.start, free.bounds,
+            # a sensor's bias is the whole log's, in each of its parts (identify/split.py)
+            owner = (experiment.alias or experiment.name) if state.endswith(".bias") else experiment.name
+            found.append(Unknown(f"{owner}.{state}", free.start, free.bounds,
                                  _scale(free.start, free.bounds)))
     return found
 
@@ -293,8 +284,11 @@ def sandwich(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarra
 # -- the fit --------------------------------------------------------------------------------
 def stages(spec: IdentifySpec) -> list[float | None]:
     """Horizons in seconds, then None (the whole windows): the spec's, else a sixteenth of the
-    longest window, doubled until it reaches that window (five stages)."""
+    longest window, doubled until it reaches that window (five stages). Segments of multiple
+    shooting (identify/split.py) are short by design: their windows at once."""
     longest = max(float(e.t[-1] - e.t[0]) for e in spec.experiments)
+    if all("@" in e.name and e.alias for e in spec.experiments):
+        return [None]
     if spec.horizon is not None:
         horizons = list(spec.horizon)
     else:
@@ -449,6 +443,7 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     check_ranges(spec, target)
     plant_values = _plant_values(target, [p.name for p in spec.free])
     items = unknowns(spec, plant_values)
+    spec = prepared(spec, target)
     everything = list(spec.experiments) + list(spec.validation)
     runner = Runner(target, everything, workers, dask)
     points = start_points(items, starts, seed)

@@ -280,6 +280,8 @@ def compare(experiment: Experiment, simulated: Mapping[str, np.ndarray]) -> dict
         error = simulated[name] - measured.values
         entry = {"rms": float(math.sqrt(np.mean(error ** 2))), "max": float(np.max(np.abs(error))),
                  "sigma": measured.sigma, "sigma_from": measured.sigma_from}
+        if measured.quantum:
+            entry["quantum"] = measured.quantum
         p_measured, p_simulated = period(experiment.t, measured.values), period(experiment.t, simulated[name])
         if p_measured is not None:
             entry["period"] = {"measured": p_measured, "simulated": p_simulated,
@@ -288,28 +290,33 @@ def compare(experiment: Experiment, simulated: Mapping[str, np.ndarray]) -> dict
     return found
 
 
-_RUNTIMES: dict = {}   # (controller file, its sha256, period) -> (file, runtime), in this process
+_RUNTIMES: dict = {}   # (controller file or law, its sha256, period) -> (file, runtime), in this process
 
 
 def _runtime(loop, period: float):
     key = (str(loop.controller), loop.sha256, period)
     if key not in _RUNTIMES:
-        from furuta_cosim.controllers import load_controller
         from furuta_cosim.cosim.runtime import runtime_for
 
         _RUNTIMES.clear()  # one loop at a time is the usual case; a fit of several rebuilds
-        _RUNTIMES[key] = runtime_for(load_controller(loop.controller), period, where="the log's loop")
+        _RUNTIMES[key] = runtime_for(loop.controller_file(), period, where="the log's loop")
     return _RUNTIMES[key][1]
 
 
 def closed_loop(session, target: Target, experiment: Experiment,
                 values: Mapping[str, float] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """(outputs, the voltage the controller gave) of the experiment with its loop closed: at
-    each sample the controller sees what it saw on the rig (the angles as the encoders count
-    them, rates by the same filter, the current), its command is clipped to the loop's
-    voltage limit and held over the sample (furuta_cosim.measurement; rig/runner.py). Its
-    state and the rates' filter start at zero at the window's start. A ``delay`` (the board's
-    transport delay) holds the last command for that long into each sample."""
+    """(outputs, the voltage the controller wrote) of the experiment with its loop closed: at each
+    sample the controller sees what it saw on the rig (the angles as the encoders count them,
+    rates by the same filter, the current), the log's feedforward is added, the command is
+    clipped to the loop's voltage limit and reaches the motor ``delay`` seconds later (the
+    board's transport and computation delay, any number of samples), held over each sample
+    (furuta_cosim.measurement; rig/runner.py). The controller's state and the rates' filter
+    start at zero at the window's start.
+
+    With the loop's ``estimate`` (a balancing log, identify/estimate.py) the controller sees
+    the angles it logged moved by the simulation's departure from their true values as
+    estimated on the plant at ``values``; else it sees the simulated angles rounded to
+    counts."""
     import math as _math
 
     from furuta_cosim.measurement import RateFilter, counted
@@ -325,12 +332,21 @@ def closed_loop(session, target: Target, experiment: Experiment,
     raw = np.full((n, len(names)), np.nan)
     volts = np.zeros(n)
     reference = loop.reference if loop.reference is not None else np.zeros(n)
+    feedforward = loop.feedforward if loop.feedforward is not None else np.zeros(n)
     per_count = 2.0 * _math.pi / loop.counts
     rates = RateFilter(experiment.period, loop.rate_filter)
-    limit, delay, held = loop.voltage, loop.delay, 0.0
-    if not 0.0 <= delay < experiment.period:
-        raise ConfigError([f"{experiment.path}: loop.delay: {delay:g} s is not shorter than the log's "
-                           f"period ({experiment.period:g} s)"])
+    limit, h = loop.voltage, experiment.period
+    noise = None
+    if loop.estimate:
+        from furuta_cosim.identify.estimate import estimated_noise
+
+        noise = estimated_noise(experiment, target, {**experiment.parameters, **(values or {})})
+    # a delay of m whole samples and a fraction f of one: over [t_k, t_k + f) the motor gets the
+    # command of sample k - m - 1, over the rest of the sample that of k - m (0 before the start)
+    whole = int(_math.floor(loop.delay / h + 1e-9))
+    part = loop.delay - whole * h
+    if part < 1e-12 * h:
+        part = 0.0
     try:
         session.reset(parameters=overrides(target, experiment, values or {}), start_time=float(experiment.t[0]))
         session.set_io(inputs=[v_name], outputs=[v for v, _, _ in fmu_out])
@@ -341,17 +357,21 @@ def closed_loop(session, target: Target, experiment: Experiment,
             theta0, theta1, current = si[len(names):]
             if not all(_math.isfinite(v) for v in si):
                 break
-            a0, a1 = counted(theta0, 0.0, per_count), counted(theta1, _math.pi, per_count)
+            if noise is not None:   # what it logged, moved as the simulation is from the truth
+                a0, a1 = theta0 + noise[0][k], theta1 + noise[1][k]
+            else:
+                a0, a1 = counted(theta0, 0.0, per_count), counted(theta1, _math.pi, per_count)
             r0, r1 = rates((a0, a1))
-            u = float(runtime.control([a0, r0, a1, r1, current], float(reference[k])))
+            u = float(runtime.control([a0, r0, a1, r1, current], float(reference[k]))) + float(feedforward[k])
             if limit is not None:
                 u = max(-limit, min(limit, u))
             volts[k] = u
             if k < n - 1:
-                if delay > 0.0:  # the last command reaches the motor for the first part of the sample
-                    session.step([(held - v_offset) / v_scale], delay)
-                y = session.step([(u - v_offset) / v_scale], experiment.period - delay)
-                held = u
+                now = volts[k - whole] if k >= whole else 0.0
+                if part > 0.0:  # the command before it reaches the motor for the first part
+                    before = volts[k - whole - 1] if k >= whole + 1 else 0.0
+                    session.step([(before - v_offset) / v_scale], part)
+                y = session.step([(now - v_offset) / v_scale], h - part)
     except FmuError as error:
         raise SimulationFailed(str(error)) from None
     if not np.all(np.isfinite(raw)) or not np.all(np.isfinite(volts)):

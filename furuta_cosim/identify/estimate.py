@@ -1,0 +1,146 @@
+"""What the encoders' rounding hid: the true angles of a balancing log, estimated.
+
+A controller on a rig sees its angles rounded to whole encoder counts. A replay that closes
+its loop with the same rounding is a staircase in the plant's parameters (a fit's finite
+differences see steps, not slopes), and one that closes it on exact angles misses the
+command's chatter that the rounding drove on the rig, which moves the arm and the current:
+measured on a synthetic balancing log, the fitted R_a, M_f and C0 then left their intervals.
+
+So the replay of a balancing log feeds the controller the angles it logged plus the
+simulation's departure from the true angles, ``y + (theta_sim - theta_true)``: at the true
+parameters it sees exactly what it saw on the rig, and the outputs are smooth in the
+parameters. The true angles are estimated in each replay by a Rauch-Tung-Striebel smoother
+(a Kalman filter forward, its gains backward) on the plant linearized upright at the values
+replayed, driven by the logged voltage (after the loop's delay) and measuring the angles
+(noise: the quantum's q^2/12) and the current. On a synthetic log the estimate is within 0.06
+quanta RMS of the truth at the true parameters and 0.12 at values 30 % off, against 0.3 for
+the counts themselves. Estimated once at the start values instead, the fit needed more than
+six rounds of estimating and fitting again to settle, and stayed further from the truth.
+
+Rauch, Tung and Striebel, AIAA Journal 3(8), 1965; closed-loop identification by the direct
+method: Forssell and Ljung, Automatica 35(9), 1999.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Mapping
+
+import numpy as np
+
+# the smoother's process noise: a disturbance on the voltage of this RMS (V); robust to start
+# values 30 % off on the synthetic log (0.2 V and 1 V give the same estimate to 0.02 quanta)
+INPUT_NOISE = 3.0
+# a log whose pendulum leaves this band around upright (rad) is not a balancing log: the
+# linear model is not the plant there, and the loop closes on the counted angles instead
+UPRIGHT = 0.5
+
+
+def balancing(experiment) -> bool:
+    """Whether a closed-loop log can have its angles estimated: it logs both angles and the
+    voltage, and its pendulum stays within UPRIGHT of upright."""
+    if experiment.loop is None or "V" not in experiment.inputs:
+        return False
+    if not {"theta0", "theta1"} <= set(experiment.outputs):
+        return False
+    pendulum = experiment.outputs["theta1"].values
+    return bool(np.all(np.abs(np.mod(pendulum + math.pi, 2 * math.pi) - math.pi) < UPRIGHT))
+
+
+def _model(target, values: Mapping[str, float], period: float, delay: float):
+    """(Ad, B_before, B_now, C, names): the plant linearized upright at ``values`` (Coulomb
+    friction left out) and sampled at ``period``, the voltage reaching the motor ``delay``
+    after its sample: over a sample the motor gets one command for the delay's fraction of a
+    sample and the next for the rest."""
+    from scipy.linalg import expm
+
+    from furuta_cosim.fmu.linearize import linearize
+
+    parameters = dict(target.fixed)
+    parameters.update({k: v for k, v in values.items() if "." not in k})
+    for name in ("Tc0", "Tc1"):   # nonsmooth at rest: no derivative to linearize
+        if name in parameters:
+            parameters[name] = 0.0
+    v_name = target.input("V")[0]
+    outputs = [target.output(n)[0] for n in ("theta0", "theta1", "i")]
+    lin = linearize(target.fmu, parameters=parameters, inputs={v_name: 0.0}, outputs=outputs)
+    A, B, C = np.asarray(lin.A), np.asarray(lin.B)[:, :1], np.asarray(lin.C)
+    n = A.shape[0]
+
+    def flow(seconds: float):
+        block = np.zeros((n + 1, n + 1))
+        block[:n, :n], block[:n, n:] = A * seconds, B * seconds
+        M = expm(block)
+        return M[:n, :n], M[:n, n:]
+
+    whole = int(math.floor(delay / period + 1e-9))
+    part = delay - whole * period
+    first, g_first = flow(part) if part > 1e-12 * period else (np.eye(n), np.zeros((n, 1)))
+    rest, g_rest = flow(period - part if part > 1e-12 * period else period)
+    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole
+
+
+def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The two angles' measurement errors of ``experiment`` (logged minus estimated true
+    angle, rad, one value per sample), on the plant at ``values``."""
+    from scipy.linalg import solve_discrete_are
+
+    loop = experiment.loop
+    Ad, B_before, B_now, C, whole = _model(target, values, experiment.period, loop.delay)
+    n = Ad.shape[0]
+    names = ["theta0", "theta1"] + (["i"] if "i" in experiment.outputs and C.shape[0] > 2 else [])
+    C = C[:len(names)]
+    y = np.column_stack([experiment.outputs[k].values for k in names])
+    turns = 2 * math.pi * round(float(np.mean(y[:, 1])) / (2 * math.pi))  # upright is 0 to the model
+    y[:, 1] -= turns
+    R = np.diag([experiment.outputs[k].sigma ** 2 for k in names])
+    written = experiment.input_at("V")
+    if loop.voltage is not None:
+        written = np.clip(written, -loop.voltage, loop.voltage)
+    N = len(written)
+    # the command at the motor over sample k: that of k - whole (0 before the log)
+    now = np.concatenate([np.zeros(min(whole, N)), written[:max(N - whole, 0)]])
+    before = np.concatenate([[0.0], now[:-1]])
+    B = B_now + B_before
+    Q = np.outer(B, B) * INPUT_NOISE ** 2 + np.eye(n) * 1e-12
+    P = solve_discrete_are(Ad.T, C.T, Q, R)           # the a priori covariance, steady
+    gain = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    P_after = P - gain @ C @ P
+    smoother = P_after @ Ad.T @ np.linalg.inv(P)
+    predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
+    x = np.linalg.lstsq(C, y[0], rcond=None)[0]
+    for k in range(N):
+        predicted[k] = x
+        filtered[k] = x + gain @ (y[k] - C @ x)
+        if k + 1 < N:
+            x = Ad @ filtered[k] + B_before * before[k] + B_now * now[k]
+    smoothed = filtered.copy()
+    for k in range(N - 2, -1, -1):
+        smoothed[k] = filtered[k] + smoother @ (smoothed[k + 1] - predicted[k + 1])
+    angles = smoothed @ C[:2].T
+    return y[:, 0] - angles[:, 0], y[:, 1] - angles[:, 1]
+
+
+def with_estimate(experiment, target):
+    """``experiment`` with its loop's angles estimated in every replay (a balancing log on
+    this project's plant), else as it is."""
+    if target.mapping is not None or not balancing(experiment) or experiment.loop.estimate:
+        return experiment
+    return replace(experiment, loop=replace(experiment.loop, estimate=True))
+
+
+def prepared(spec, target):
+    """``spec`` as a fit replays it: each balancing log with its angles estimated, each other
+    closed-loop log (a swing-up) driven by its logged voltage after the loop's delay, open loop."""
+    from furuta_cosim.identify.split import delayed
+
+    def one(experiment):
+        if experiment.loop is None:
+            return experiment
+        if target.mapping is None and balancing(experiment):
+            return with_estimate(experiment, target)
+        return delayed(experiment)
+
+    return replace(spec, experiments=tuple(one(e) for e in spec.experiments),
+                   validation=tuple(one(e) for e in spec.validation))
