@@ -535,21 +535,26 @@ def cmd_identify(args) -> int:
                                 + ([f"--starts {args.starts}"] if args.starts != 1 else [])
                                 + (["--no-profiles"] if args.no_profiles else [])
                                 + ([f"--bootstrap {args.bootstrap}"] if args.bootstrap else [])
-                                + ([f"--seed {args.seed}"] if args.seed else []) + ["--resume"])
+                                + ([f"--seed {args.seed}"] if args.seed else [])
+                                + ([f"--holdout {args.holdout:g}"] if args.holdout is not None else [])
+                                + [f"--validate {v}" for v in args.validate or ()]
+                                + (["--accept"] if args.accept else []) + ["--resume"])
     try:
         document = identify(args.spec, out, workers=_workers(args), dask=args.dask, resume=args.resume,
                             starts=args.starts, profiles=not args.no_profiles, bootstrap=args.bootstrap,
-                            seed=args.seed, progress=progress,
+                            seed=args.seed, holdout=args.holdout, validation=args.validate or (),
+                            accept=args.accept, progress=progress,
                             log=lambda line: (bar.close(), print(line, file=sys.stderr)))
     finally:
         bar.close()
+    code = 0 if document["verdict"]["trusted"] or args.accept else EXIT_FAILED
     if args.json:
         print(dumps(document))
-        return 0
+        return code
     from furuta_cosim.identify.run import summary_text
 
     print(summary_text(document, out), end="")
-    return 0
+    return code
 
 
 def cmd_design_experiment(args) -> int:
@@ -849,6 +854,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bootstrap", type=int, default=0, metavar="N",
                    help="N replicates of a block bootstrap of the residuals: a third interval (default 0)")
     p.add_argument("--seed", type=int, default=0, help="the multi-start's design and the bootstrap's draws")
+    p.add_argument("--holdout", type=float, metavar="FRACTION",
+                   help="hold out the last FRACTION of each log and validate on it (default: the spec's "
+                        "holdout, else 0)")
+    p.add_argument("--validate", action="append", metavar="EXPERIMENT",
+                   help="an experiment file to validate on, never fitted (repeat for more)")
+    p.add_argument("--accept", action="store_true",
+                   help="write plant.yaml even when the verdict does not trust the fit (exit 0)")
     p.add_argument("--json", action="store_true", help="print fit.json")
     p.set_defaults(handler=cmd_identify)
 
@@ -934,7 +946,7 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "model": "--model", "duration": "--duration", "scenario": "--scenario",
          "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board",
          "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait", "starts": "--starts",
-         "bootstrap": "--bootstrap"}
+         "bootstrap": "--bootstrap", "holdout": "--holdout", "validation": "--validate"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

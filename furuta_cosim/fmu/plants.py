@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Mapping
 
 from furuta_cosim import paths
-from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
+from furuta_cosim.config import Checker, Frozen, excerpt, load_yaml, resolve_file
 from furuta_cosim.errors import ConfigError
 
 
@@ -123,6 +123,12 @@ def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = (),
 def _load(path: Path, seen: tuple) -> PlantSet:
     data = load_yaml(path)
     check = Checker(path)
+    if isinstance(data, dict) and "rejected" in data:
+        # identify's fit that did not reproduce its data (identify/verdict.py): no plant to use
+        why = data["rejected"] if isinstance(data["rejected"], str) else "see fit.json beside it"
+        check.fail("rejected", f"identify judged this fit untrustworthy ({excerpt(why, 300)}); fit again, "
+                               "or run identify with --accept to write it as a plant all the same")
+        check.done()
     top = check.mapping(data, "", required=("model",), optional=_NONLINEAR_KEYS + _LINEAR_KEYS)
     if top is None or "model" not in top:
         check.done()

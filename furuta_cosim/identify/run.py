@@ -22,6 +22,8 @@ from furuta_cosim.identify.fit import FitResult, fit, with_values
 from furuta_cosim.identify.replay import (SimulationFailed, Target, check_names, compare,
                                           open_session, simulate)
 from furuta_cosim.identify.spec import load_identify_spec
+from furuta_cosim.identify.split import parts_of
+from furuta_cosim.identify.verdict import line as verdict_line
 
 
 def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None) -> dict:
@@ -44,8 +46,13 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     dict
         Per experiment and output: the RMS error and, where it oscillates, the period.
     """
+    from furuta_cosim.identify.estimate import with_estimate
+
     loaded = [load_experiment(path) for path in experiments]
     check_names(target, loaded)
+    # a balancing log closes its loop as a fit does (identify/estimate.py): the RMS replay
+    # reports is the one identify reports for the same plant
+    loaded = [with_estimate(e, target) for e in loaded]
     out = output_folder(output) if output is not None else None
     document = {"plant": target.label, "experiments": {}}
     with open_session(target) as session:
@@ -80,8 +87,9 @@ def _figures(out: Path, experiment: Experiment, simulated: dict) -> list[Path]:
 
 def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, dask: str | None = None,
              fmi_version: str = "2.0", resume: bool = False, starts: int = 1, profiles: bool = True,
-             bootstrap: int = 0, seed: int = 0, progress=lambda stage, n, cost: None,
-             log: Callable[[str], None] = lambda line: None) -> dict:
+             bootstrap: int = 0, seed: int = 0, holdout: float | None = None,
+             validation: Sequence[str | Path] = (), accept: bool = False,
+             progress=lambda stage, n, cost: None, log: Callable[[str], None] = lambda line: None) -> dict:
     """Fit the plant parameters of an identify spec to its experiments and write the run
     directory: ``plant.yaml`` (the fitted plant) and ``fit.json`` first, then ``report.html``
     and the figures.
@@ -113,6 +121,14 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         Replicates of a block bootstrap of the residuals (identify/bootstrap.py; 0: none).
     seed : int
         The multi-start's design and the bootstrap's draws.
+    holdout : float, optional
+        The last fraction of each fitted log held out and validated on (the spec's ``holdout``
+        when None).
+    validation : sequence of paths
+        More experiment files to validate on, beside the spec's ``validation``.
+    accept : bool
+        Write the fitted plant even when the verdict (identify/verdict.py) does not trust it;
+        otherwise such a fit's plant file carries ``rejected`` and no ``--plant`` reads it.
     progress : callable
         ``progress(stage, simulations, cost)``, called as the fit goes.
     log : callable
@@ -131,6 +147,15 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
             raise ConfigError([f"{name}: expected a whole number from {low} to {high}, got {value!r}"])
     spec = load_identify_spec(spec_name)
+    if holdout is not None and (isinstance(holdout, bool) or not isinstance(holdout, (int, float))
+                                or not 0.0 <= holdout <= 0.9):
+        raise ConfigError([f"holdout: expected a fraction from 0 to 0.9, got {holdout!r}"])
+    extra = [load_experiment(Path(v)) for v in validation]
+    spec = parts_of(spec, spec.holdout if holdout is None else float(holdout), extra)
+    names = [e.name for e in spec.experiments + spec.validation]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError([f"validation: two experiments are named {', '.join(twice)}: names must differ"])
     out = output_folder(output)
     try:
         target = target_for(plant=spec.plant, fmi_version=fmi_version)
@@ -141,17 +166,22 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free), str(spec.path))
     check_ranges(spec, target)
     identity = _identity(spec, target, fmi_version)
-    identity["options"] = {"starts": starts, "profiles": bool(profiles), "bootstrap": bootstrap, "seed": seed}
+    identity["options"] = {"starts": starts, "profiles": bool(profiles), "bootstrap": bootstrap, "seed": seed,
+                           "holdout": spec.holdout if holdout is None else float(holdout)}
     state = _claim(out, spec, identity, resume)
     log(f"identify {spec.name}: {len(spec.free)} parameters of {target.label} on "
-        f"{', '.join(e.name for e in spec.experiments)}"
-        + (f"; validation {', '.join(e.name for e in spec.validation)}" if spec.validation else "")
+        f"{_names(spec.experiments)}" + (f"; validation {_names(spec.validation)}" if spec.validation else "")
         + (f"; {starts} starts" if starts > 1 else "")
         + (f"; resumed after stage {state['stage']}" if state else ""))
+    from furuta_cosim.identify.estimate import balancing
+
     for e in spec.experiments + spec.validation:
-        if e.loop is not None:
-            log(f"note: {e.name}: fitted on its logged voltage, open loop (a fit does not close a "
-                "log's loop; replay does)")
+        if e.loop is not None and balancing(e) and target.mapping is None:
+            log(f"note: {e.name}: replayed with its loop closed ({e.loop.describe()}), the angles the "
+                "encoders rounded estimated by a smoother")
+        elif e.loop is not None:
+            log(f"note: {e.name}: not a balancing log (the pendulum leaves upright): fitted on its "
+                "logged voltage, open loop")
     saved = {"fit": state, "profiles": (state or {}).get("profiles", {})}
 
     def checkpoint() -> None:
@@ -173,7 +203,7 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         from furuta_cosim.identify.profile import profile_all
 
         clock = time.perf_counter()
-        found = profile_all(spec, target, result, workers=workers, dask=dask, done=saved["profiles"],
+        found = profile_all(result.spec, target, result, workers=workers, dask=dask, done=saved["profiles"],
                             progress=progress, log=log, on_profile=profiled)
         _with_profiles(document, found)
         document["profiles"] = {"simulations": sum(p.get("simulations", 0) for p in found.values()),
@@ -182,22 +212,32 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         from furuta_cosim.identify.bootstrap import bootstrap_all
 
         clock = time.perf_counter()
-        resampled = bootstrap_all(spec, target, result, replicates=bootstrap, seed=seed, workers=workers,
+        resampled = bootstrap_all(result.spec, target, result, replicates=bootstrap, seed=seed, workers=workers,
                                   dask=dask, progress=progress, log=log)
         _with_bootstrap(document, resampled)
         document["bootstrap"]["seconds"] = time.perf_counter() - clock
     document["spec_sha256"] = identity["spec_sha256"]
     document["options"] = identity["options"]
-    figures_of = [(e, result.simulated[e.name]) for e in spec.experiments + spec.validation]
+    from furuta_cosim.identify.fit import physical_ranges
+    from furuta_cosim.identify.verdict import judge
+
+    document["loops"] = {e.name: "closed" if e.loop is not None else
+                         "segments" if e.alias and "@" in e.name else "open"
+                         for e in result.spec.experiments + result.spec.validation}
+    document["verdict"] = verdict = judge(document, physical_ranges(target), spec.tolerance)
+    document["accepted"] = bool(accept) and not verdict["trusted"]
+    figures_of = [(e, result.simulated[e.name]) for e in result.spec.experiments + result.spec.validation]
     document["figures"] = [f"{e.name}-{kind}.png" for e, _ in figures_of for kind in ("overlay", "residuals")]
     if profiles:
         document["figures"].append("profiles.png")
     document["files"] = sorted(["plant.yaml", "fit.json", "report.html"] + document["figures"]
                                + [str(Path(p).with_suffix(".svg")) for p in document["figures"]])
     # the fit first, so that a full disk or a kill while drawing keeps it
-    plant = plant_text(result, out)
+    rejected = None if verdict["trusted"] or accept else verdict["reasons"][0]
+    plant = plant_text(result, out, rejected, verdict)
     write_text(out / "plant.yaml", plant)
-    document["fitted_plant"] = {"file": "plant.yaml", "sha256": _fitted_digest(out / "plant.yaml")}
+    document["fitted_plant"] = ({"file": "plant.yaml", "rejected": True} if rejected else
+                                {"file": "plant.yaml", "sha256": _fitted_digest(out / "plant.yaml")})
     write_text(out / "fit.json", dumps(document, indent=2) + "\n")
     (out / CHECKPOINT).unlink(missing_ok=True)
     for experiment, pair in figures_of:
@@ -208,6 +248,15 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         plot_profiles(document["parameters"], out / "profiles")
     write_text(out / "report.html", report_page(document, out))
     return document
+
+
+def _names(experiments) -> str:
+    """The logs' names, a log cut into segments once with their count."""
+    counts: dict = {}
+    for e in experiments:
+        whole = e.alias if e.alias and "@" in e.name else e.name
+        counts[whole] = counts.get(whole, 0) + 1
+    return ", ".join(name if n == 1 else f"{name} ({n} segments)" for name, n in counts.items())
 
 
 def _with_profiles(document: dict, found: dict) -> None:
@@ -357,9 +406,10 @@ def _same(where: Path, saved, identity: dict) -> None:
                                "identify anew without `resume`"])
 
 
-def plant_text(result: FitResult, out: Path) -> str:
+def plant_text(result: FitResult, out: Path, rejected: str | None = None, verdict: dict | None = None) -> str:
     """The fitted plant file: the spec's plant extended with the fitted values (a name stays a
-    name; a file is named by its path relative to ``out``, so the folder travels)."""
+    name; a file is named by its path relative to ``out``, so the folder travels). A fit the
+    verdict does not trust carries ``rejected: <why>``, which load_plant refuses."""
     spec, plant = result.spec, result.target.plant
     base = spec.plant
     if "/" in base or base.endswith((".yaml", ".yml")):
@@ -378,6 +428,11 @@ def plant_text(result: FitResult, out: Path) -> str:
             "fit": "fit.json",
         },
     }
+    if verdict is not None:
+        document["provenance"]["verdict"] = ("trusted" if verdict["trusted"] else
+                                             "not trusted, written with --accept: " + "; ".join(verdict["reasons"]))
+    if rejected is not None:
+        document = {"rejected": rejected, **document}
     head = (f"# Written by furuta-cosim identify {spec.name}: the fitted parameters on top of "
             f"{base}.\n# Their intervals and correlations are in fit.json beside this file.\n")
     return head + yaml.safe_dump(document, sort_keys=False)
@@ -441,6 +496,12 @@ def summary_text(document: dict, out: Path) -> str:
                      f"{document['bootstrap']['seconds']:.1f} s")
     if document["message"].startswith("stopped"):
         lines.append(f"note: {document['message']}: the fit is the best point found within the budget")
+    verdict = document.get("verdict")
+    if verdict:
+        lines += [f"note: {n}" for n in verdict["notes"]]
+        lines.append(verdict_line(verdict) + (" (plant.yaml written all the same: --accept)"
+                                              if document.get("accepted") else
+                                              "" if verdict["trusted"] else " (plant.yaml is marked rejected)"))
     return "\n".join(lines) + "\n"
 
 

@@ -8,6 +8,8 @@ parameters are free, within which bounds.
     free:
       I_p: {start: 3.3e-5, bounds: [1.0e-6, 1.0e-3]}
     horizon: [2.0, 8.0]              # seconds fitted first, in stages, before the whole windows
+    tolerance: 20                    # a trusted fit replays within this many noise floors RMS
+    holdout: 0.25                    # the last quarter of each log held out, validated on
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from furuta_cosim.errors import ConfigError
 from furuta_cosim.identify.experiment import Experiment, load_experiment
 
 _KEYS = ("name", "description", "plant", "experiments", "validation", "free", "horizon",
-         "max_simulations")
+         "max_simulations", "tolerance", "holdout")
 MAX_FREE = 40
 
 
@@ -46,6 +48,8 @@ class IdentifySpec:
     free: tuple[Parameter, ...]
     horizon: tuple[float, ...] | None   # None: doubling from 2 s
     max_simulations: int = 2000
+    tolerance: float = 20.0      # noise floors of replay RMS a trusted fit stays within
+    holdout: float = 0.0         # the last fraction of each fitted log, held out for validation
 
 
 def spec_path(name: str | Path) -> Path:
@@ -76,6 +80,10 @@ def load_identify_spec(name: str | Path) -> IdentifySpec:
                 horizon = tuple(values)
     budget = check.number(top.get("max_simulations", 2000), "max_simulations", minimum=1,
                           maximum=1_000_000, integer=True)
+    from furuta_cosim.identify.verdict import TOLERANCE
+
+    tolerance = check.number(top.get("tolerance", TOLERANCE), "tolerance", positive=True, maximum=1e6)
+    holdout = check.number(top.get("holdout", 0.0), "holdout", minimum=0.0, maximum=0.9)
     experiments = _experiments(check, top["experiments"], "experiments", path, required=True)
     validation = _experiments(check, top.get("validation", []), "validation", path)
     check.done()
@@ -91,7 +99,7 @@ def load_identify_spec(name: str | Path) -> IdentifySpec:
                                   "a fit needs more samples than free parameters")
     check.done()
     return IdentifySpec(spec_name, description, path, plant, tuple(experiments), tuple(validation),
-                        tuple(free), horizon, int(budget))
+                        tuple(free), horizon, int(budget), float(tolerance), float(holdout))
 
 
 def _free(check: Checker, value) -> list[Parameter]:
