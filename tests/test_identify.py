@@ -197,7 +197,7 @@ def test_profiles_starts_and_a_bootstrap_on_a_synthetic_log(tmp_path, capsys):
         lo, hi = p["interval_bootstrap"]
         assert lo < p["value"] * 1.001 and hi > p["value"] * 0.999 and hi - lo < 3 * sandwich, (name, p)
     assert document["starts"]["count"] == 2 and len(document["starts"]["optima"]) == 1
-    assert document["options"] == {"starts": 2, "profiles": True, "bootstrap": 12, "seed": 3}
+    assert document["options"] == {"starts": 2, "profiles": True, "bootstrap": 12, "seed": 3, "holdout": 0.0}
     assert (tmp_path / "fit" / "profiles.png").stat().st_size > 10_000
     assert "profile 95 %" in out and "bootstrap 95 %" in out and "2 starts, all at the same optimum" in out
 

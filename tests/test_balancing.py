@@ -1,0 +1,213 @@
+"""Balancing logs: fitted with the loop in the replay (a controller file of ours or a law from
+another tool), by multiple shooting when no controller is known, validated on held-out data,
+and every fit judged before its plant file is written (identify/verdict.py)."""
+
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.identify.experiment import load_experiment
+from furuta_cosim.identify.synthetic import balancing_log, truth
+from furuta_cosim.identify.verdict import judge
+
+from helpers import run_cli
+
+QUANTUM = 2 * math.pi / 2048
+TRUE = truth()
+PD = ([-1.0, -1.2, 34.0, 3.0], -1.0)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """A 6 s balancing log of the QUBE under lqr-qube (one-sample delay, 10 V limit, the arm on
+    a square wave), its virtual board's own record of the true angles, and a PD-law log."""
+    root = tmp_path_factory.mktemp("balancing")
+    lqr = balancing_log(root / "lqr", seed=0, duration=6.0, board_log=root / "board.csv")
+    pd = balancing_log(root / "pd", seed=1, duration=6.0, law=PD, amplitude=0.2, period=3.0)
+    return {"lqr": lqr, "pd": pd, "board": root / "board.csv"}
+
+
+def _spec(folder: Path, experiment: Path, free=("R_a", "M_f"), off: float = 0.3, **extra) -> Path:
+    spec = {"name": "balancing", "plant": "qube-servo-3", "experiments": [str(experiment)],
+            "free": {n: {"start": TRUE[n] * (1 + off), "bounds": [TRUE[n] / 10, TRUE[n] * 10]} for n in free}}
+    spec.update(extra)
+    path = folder / "spec.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+def _rewritten(experiment: Path, folder: Path, change) -> Path:
+    """A copy of ``experiment`` (beside its log) with ``change(data)`` applied."""
+    data = yaml.safe_load(experiment.read_text())
+    change(data)
+    data["data"] = str(experiment.parent / data["data"])
+    if "controller" in data.get("loop", {}):
+        data["loop"]["controller"] = str(experiment.parent / data["loop"]["controller"])
+    path = folder / f"{experiment.parent.name}-changed.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.mark.slow
+def test_a_balancing_log_is_fitted_with_its_loop_closed(logs, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "identify", str(_spec(tmp_path, logs["lqr"])), "-o", str(tmp_path / "fit"),
+                             "--no-profiles", "--workers", "1", "--holdout", "0.3")
+    assert code == 0, (out, err)
+    assert "replayed with its loop closed" in err
+    document = yaml.safe_load((tmp_path / "fit" / "fit.json").read_text())
+    # started 30 % off, 4.2 s fitted: both within 5 % (measured: -2.2 % and +1.7 %; open loop
+    # the same log gives errors of 40 to 110 %, tools/bench_balancing.py)
+    assert document["parameters"]["R_a"]["value"] == pytest.approx(TRUE["R_a"], rel=0.05)
+    assert document["parameters"]["M_f"]["value"] == pytest.approx(TRUE["M_f"], rel=0.05)
+    held = document["validation"]["lqr-held-out"]
+    assert held["theta0"]["rms"] < 3 * QUANTUM and held["theta1"]["rms"] < 3 * QUANTUM, held
+    assert document["verdict"]["trusted"] and out.strip().splitlines()[-1].startswith("verdict: trusted")
+    assert "rejected" not in yaml.safe_load((tmp_path / "fit" / "plant.yaml").read_text())
+
+
+@pytest.mark.slow
+def test_a_balancing_log_run_open_loop_is_not_trusted_and_leaves_no_usable_plant(logs, tmp_path, capsys):
+    """The issue's case: a balancing log on its logged voltage alone (an unstable plant run
+    open loop): the fit says so last, exits 1, and its plant file is refused until accepted."""
+    open_loop = _rewritten(logs["lqr"], tmp_path, lambda d: d.pop("loop"))
+    spec = _spec(tmp_path, open_loop, max_simulations=20)
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles",
+                             "--workers", "1")
+    last = out.strip().splitlines()[-1]
+    assert code == 1 and last.startswith("verdict: NOT trusted: "), (code, out, err)
+    assert "times its noise floor" in last and "next: " in last
+    assert "stopped at max_simulations (20)" in out   # the budget's message is printed
+    plant = tmp_path / "fit" / "plant.yaml"
+    assert "rejected" in yaml.safe_load(plant.read_text())
+    code, out, err = run_cli(capsys, "simulate", "qube-step", "--plant", str(plant))
+    assert code == 2 and "untrustworthy" in err and "--accept" in err
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles",
+                             "--workers", "1", "--accept")
+    assert code == 0 and "written all the same" in out
+    code, out, err = run_cli(capsys, "simulate", "qube-step", "--plant", str(plant))
+    assert "untrustworthy" not in err
+
+
+def test_the_verdict_names_each_reason():
+    document = {"experiments": {"a": {"theta0": {"rms": 0.05, "sigma": 0.00089, "sigma_from": "quantum",
+                                                 "quantum": 0.0030679}}},
+                "validation": {"b": {"i": {"rms": 0.003, "sigma": 0.004, "sigma_from": "noise"}}},
+                "message": "stopped at max_simulations (10) in stage 2/5 (first 1 s)",
+                "parameters": {"R_a": {"value": 7.0, "interval": [-488.0, 501.0], "identifiable": True},
+                               "C0": {"value": 1e-5, "interval": [-1e-5, 3e-5], "identifiable": True},
+                               "a.theta1": {"value": 0.1, "interval": [-1.0, 1.0]}}}
+    ranges = {"R_a": (0.0, None, True), "C0": (0.0, None, False)}
+    verdict = judge(document, ranges)
+    # 0.05 rad is 16.3 quanta: within the default 20; the budget and R_a's interval are not
+    assert not verdict["trusted"] and len(verdict["reasons"]) == 2, verdict
+    budget, bound = verdict["reasons"]
+    assert verdict["outputs"]["a"]["theta0"]["floors"] == pytest.approx(0.05 / 0.0030679)
+    assert "max_simulations" in budget and "R_a" in bound and "no R_a" in bound
+    assert verdict["notes"] and "C0" in verdict["notes"][0]   # friction may be 0: a note only
+    assert judge(document, ranges, tolerance=10)["reasons"][0].startswith("a theta0: replay RMS 0.05 rad")
+    document["experiments"]["a"]["theta0"]["rms"] = 0.07   # 22.8 quanta
+    reasons = judge(document, ranges)["reasons"]
+    assert reasons[0].startswith("a theta0: replay RMS 0.07 rad is 22.8 times its noise floor")
+    document["validation"]["b"]["i"]["rms"] = float("nan")   # a NaN replay is a failure, never a pass
+    assert any(r.startswith("b (held out) i") for r in judge(document, ranges)["reasons"])
+
+
+def test_a_law_from_another_tool_closes_the_loop(logs, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "replay", str(logs["pd"]), "--plant", "qube-servo-3", "--json")
+    assert code == 0, err
+    found = yaml.safe_load(out)["experiments"]["pd"]
+    assert found["loop"] == "closed"
+    # the PD law replays its own log within a quantum on the true plant (measured 0.55, 0.36)
+    assert found["outputs"]["theta0"]["rms"] < QUANTUM and found["outputs"]["theta1"]["rms"] < QUANTUM
+
+
+def test_the_smoother_sees_the_true_angles_better_than_the_counts(logs):
+    from furuta_cosim.identify.estimate import estimated_noise
+    from furuta_cosim.identify.replay import target_for
+
+    experiment = load_experiment(logs["lqr"])
+    board = np.loadtxt(logs["board"], delimiter=",", skiprows=1)
+    # the board's clock starts before the run: its first applied volt is the run's first
+    # command, applied one delay after the run's t = 0
+    first = board[np.argmax(board[:, 2] != 0.0), 0] - experiment.loop.delay
+    rows = np.searchsorted(board[:, 0], experiment.t + first - 0.0005 - 1e-9)
+    true = board[rows][:, 5:7]
+    noise = estimated_noise(experiment, target_for(plant="qube-servo-3"), {})
+    counts = np.column_stack([experiment.outputs["theta0"].values, experiment.outputs["theta1"].values])
+    estimate = counts - np.column_stack(noise)
+    raw = np.sqrt(np.mean((counts - true) ** 2, axis=0)) / QUANTUM
+    smoothed = np.sqrt(np.mean((estimate - true) ** 2, axis=0)) / QUANTUM
+    assert np.all(raw > 0.25) and np.all(smoothed < 0.5 * raw), (raw, smoothed)   # measured 0.3 vs 0.06
+
+
+def test_segments_start_from_the_measured_state(logs):
+    from furuta_cosim.identify.split import segments, split
+
+    experiment = load_experiment(logs["lqr"])
+    parts = segments(experiment, 0.5)
+    assert [p.name for p in parts[:2]] == ["lqr@1", "lqr@2"] and len(parts) == 12
+    assert sum(p.samples for p in parts) == experiment.samples
+    k = parts[0].samples
+    assert parts[1].start["theta0"] == experiment.outputs["theta0"].values[k]
+    assert all(p.loop is None for p in parts) and parts[1].alias == "lqr"
+    fitted, held = split(experiment, 0.25)
+    assert fitted.samples + held.samples == experiment.samples and held.name == "lqr-held-out"
+    assert held.t[0] == experiment.t[fitted.samples]
+
+
+@pytest.mark.slow
+def test_multiple_shooting_fits_a_log_whose_controller_is_not_known(logs, tmp_path, capsys):
+    def shooting(data):
+        data["inputs"]["V"]["delay"] = data.pop("loop")["delay"]
+        data["segments"] = 0.1
+        data["window"] = [0.0, 3.0]
+
+    spec = _spec(tmp_path, _rewritten(logs["lqr"], tmp_path, shooting), free=("R_a",))
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles",
+                             "--workers", "1", "--json")
+    document = yaml.safe_load(out)
+    assert code == 0 and document["loops"]["lqr@1"] == "segments", err
+    # a fallback, less informed than the loop: within 10 % on 3 s (measured +7 %, its interval
+    # too narrow: the rates at each segment's start are estimated from counts); open loop the
+    # same log's whole window gives +111 %
+    p = document["parameters"]["R_a"]
+    assert p["value"] == pytest.approx(TRUE["R_a"], rel=0.1), p
+    assert document["verdict"]["trusted"]
+
+
+@pytest.mark.parametrize("change, key, words", [
+    (lambda d: d["loop"].update(law={"K": [1, 2, 3, 4]}), "loop", "one of them"),
+    (lambda d: d["loop"].update(law={"K": [1, 2, 3]}) or d["loop"].pop("controller"), "loop.law.K", "4 gains"),
+    (lambda d: d["loop"].update(law={"K": [1, 2, 3, 4], "period": 0.001}) or d["loop"].pop("controller"),
+     "loop.law.period", "0.002 s apart"),
+    (lambda d: d["loop"].update(delay=1.0), "loop.delay", "more than 10 samples"),
+    (lambda d: d["loop"].update(feedforward="nope"), "loop.feedforward", "not one of columns"),
+    (lambda d: d.update(segments=0.001), "segments", "shorter than 3 samples"),
+    (lambda d: d["inputs"]["V"].update(delay=-1), "inputs.V.delay", ">= 0"),
+])
+def test_a_loop_that_cannot_be_closed_is_refused_with_its_key(logs, tmp_path, change, key, words):
+    with pytest.raises(ConfigError) as caught:
+        load_experiment(_rewritten(logs["lqr"], tmp_path, change))
+    text = str(caught.value)
+    assert f": {key}: " in text and words in text, text
+
+
+@pytest.mark.parametrize("extra, key", [({"holdout": 2}, "holdout"), ({"tolerance": -1}, "tolerance"),
+                                        ({"tolerance": "many"}, "tolerance")])
+def test_a_spec_with_a_bad_verdict_setting_is_refused(logs, tmp_path, extra, key):
+    from furuta_cosim.identify.spec import load_identify_spec
+
+    with pytest.raises(ConfigError, match=f"spec.yaml: {key}: "):
+        load_identify_spec(_spec(tmp_path, logs["lqr"], **extra))
+
+
+def test_a_held_out_log_must_be_named_apart(logs, tmp_path, capsys):
+    shutil.copy(logs["lqr"], tmp_path / "lqr.yaml")
+    code, out, err = run_cli(capsys, "identify", str(_spec(tmp_path, logs["lqr"])), "-o", str(tmp_path / "fit"),
+                             "--validate", str(logs["lqr"]))
+    assert code == 2 and "two experiments are named lqr" in err, err
