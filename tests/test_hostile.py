@@ -688,15 +688,19 @@ def test_resuming_a_finished_run_keeps_its_times(stopped_run, tmp_path, capsys):
 @pytest.mark.slow
 def test_an_interrupted_tune_says_how_to_resume(tmp_path):
     run = tmp_path / "run"
-    # Ctrl-C's default action, whatever the launching shell set (a background job ignores it)
-    process = subprocess.Popen(CLI + ["tune", "paper-spectral", "-o", str(run), "--workers", "1"],
+    # Ctrl-C's default action, whatever the launching shell set (a background job ignores it).
+    # 1000 calls: the default 150 take 3 to 9 s, and a test process starved that long on a
+    # loaded machine sent its Ctrl-C to a run that had ended (it died of the signal on its way
+    # out: -2, once in about 20 suite runs)
+    process = subprocess.Popen(CLI + ["tune", "paper-spectral", "-o", str(run), "--workers", "1",
+                                      "--n-calls", "1000"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.default_int_handler))
     _wait_for_lines(run / "history.jsonl", 2)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130
-    assert f"'furuta-cosim tune paper-spectral -o {run} --resume' continues it" in err
+    assert f"'furuta-cosim tune paper-spectral -o {run} --n-calls 1000 --resume' continues it" in err
 
 
 @pytest.mark.slow
