@@ -86,6 +86,9 @@ def test_a_balancing_log_run_open_loop_is_not_trusted_and_leaves_no_usable_plant
     assert "rejected" in yaml.safe_load(plant.read_text())
     code, out, err = run_cli(capsys, "simulate", "qube-step", "--plant", str(plant))
     assert code == 2 and "untrustworthy" in err and "--accept" in err
+    code, out, err = run_cli(capsys, "tune", "effort-qube", "--from-fit", str(tmp_path / "fit" / "fit.json"),
+                             "-o", str(tmp_path / "tuned"))
+    assert code == 2 and "untrustworthy" in err, err
     code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles",
                              "--workers", "1", "--accept")
     assert code == 0 and "written all the same" in out
