@@ -20,6 +20,9 @@ from furuta_cosim.design.linear import LinearModel, time_text
 from furuta_cosim.design.prefilter import prefilter, tracking_bandwidth
 from furuta_cosim.errors import DesignError
 
+if False:  # for the annotation only
+    from furuta_cosim.design.margins import Margins
+
 MARGIN = 1e-9
 
 
@@ -69,6 +72,7 @@ class Analysis:
     prefilter_problem: str | None = None
     time_unit: str = "s"
     bandwidth: float | None = None       # -3 dB of rbar -> the tracked output (rad per time unit)
+    margins: "Margins | None" = None     # at the plant input (design/margins.py); a stable loop's
 
     @property
     def discrete(self) -> bool:
@@ -105,6 +109,7 @@ class Analysis:
                                  "spectral_radius": self.sampled.spectral_radius,
                                  "stable": self.sampled.stable,
                                  "dominant": self.sampled.dominant.as_dict()}
+        result["margins"] = self.margins.as_dict() if self.margins is not None else None
         result["tracking_bandwidth"] = self.bandwidth
         result["prefilter"] = ({"output": self.tracked_output, "F": self.prefilter}
                                if self.prefilter is not None else
@@ -125,6 +130,8 @@ class Analysis:
             lines.append(f"The closed loop is UNSTABLE: the mode {d.describe()} grows"
                          + (f" (amplitude doubles every {time_text(math.log(2) / growth, unit)})." if growth > 0
                             else " or does not decay."))
+        if self.margins is not None:
+            lines.append(self.margins.text(unit))
         if self.controller_eigenvalues.size == 0:
             lines.append("The controller is static (n_xc = 0).")
         elif self.controller_stable:
@@ -220,6 +227,11 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
             problem = str(error)
         if F is not None and stable:
             bandwidth = tracking_bandwidth(model, controller, tracked_output, F)
+    margins = None
+    if stable and controller.Dc.shape[0] == 1 and model.B.shape[1] == 1:
+        from furuta_cosim.design.margins import loop_margins
+
+        margins = loop_margins(model, controller)
     return Analysis(model.name, controller.name, period, eigenvalues, stable, dominant, ac,
                     controller_stable, variance, sampled, F, tracked_output, problem,
-                    model.time_unit, bandwidth)
+                    model.time_unit, bandwidth, margins)
