@@ -490,10 +490,11 @@ def cmd_replay(args) -> int:
     from furuta_cosim.identify.run import replay
 
     target = target_for(plant=None if args.fmu else args.plant, fmu=args.fmu, mapping=args.mapping)
-    document = replay(args.experiments, target, output=args.output)
+    document = replay(args.experiments, target, output=args.output, tolerance=args.tolerance)
+    code = 0 if document["reproduced"] else EXIT_FAILED
     if args.json:
         print(dumps(document))
-        return 0
+        return code
     print(f"replay on {document['plant']} (RMS of simulated - measured; angles also in degrees)")
     for name, entry in document["experiments"].items():
         if "failure" in entry:
@@ -506,12 +507,16 @@ def cmd_replay(args) -> int:
                      + ("none simulated" if period["simulated"] is None else
                         f"{period['simulated']:.5g} s simulated ({100 * period['error']:+.3f} %)")
                      if period else "")
-            print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{shown}"
+            floors = "" if c.get("floors") is None else f" = {c['floors']:.3g} noise floors"
+            print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{floors}{shown}"
                   + ("  (its loop closed)" if entry.get("loop") == "closed" else ""))
     if args.output:
         print(f"figures and replay.json in {args.output}")
-    failed = any("failure" in e for e in document["experiments"].values())
-    return EXIT_FAILED if failed else 0
+    if document["far"]:
+        print(f"not reproduced: {', '.join(document['far'])} replay beyond {document['tolerance']:g} noise "
+              "floors RMS (the floor: the encoder's quantum, or the stated or estimated noise); check "
+              "the plant, each column's unit and offset, and for a log recorded under a controller its loop:")
+    return code
 
 
 def cmd_identify(args) -> int:
@@ -836,6 +841,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu", help="a plant FMU from another tool instead of --plant")
     p.add_argument("--mapping", metavar="FILE", help="for --fmu: its names and units (as regress --mapping)")
     p.add_argument("-o", "--output", metavar="DIR", help="write overlay and residual figures and replay.json there")
+    p.add_argument("--tolerance", type=float, default=None, metavar="FLOORS",
+                   help="exit 1 when an output replays beyond FLOORS noise floors RMS (default 20)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_replay)
 
@@ -946,7 +953,7 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "model": "--model", "duration": "--duration", "scenario": "--scenario",
          "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board",
          "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait", "starts": "--starts",
-         "bootstrap": "--bootstrap", "holdout": "--holdout", "validation": "--validate"}
+         "bootstrap": "--bootstrap", "holdout": "--holdout", "validation": "--validate", "tolerance": "--tolerance"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

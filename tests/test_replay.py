@@ -25,8 +25,11 @@ initial: {theta0: arm_angle_0, dtheta0: arm_rate_0, theta1: pend_angle_0, dtheta
 def test_the_thesis_plant_is_off_the_real_swing_as_measured(capsys, tmp_path):
     code, out, err = run_cli(capsys, "replay", str(RIG / "free-swing.yaml"), str(RIG / "motor-7V.yaml"),
                              "--plant", "qube-servo-3", "-o", str(tmp_path), "--json")
-    assert code == 0, err
     document = json.loads(out)
+    # the thesis's plant leaves the 7 V run's arm 64 quanta RMS off: not reproduced, exit 1;
+    # the swing is 14 quanta off, within the 20 accepted
+    assert code == 1 and document["far"] == ["motor-7V theta0"] and not document["reproduced"], err
+    assert document["experiments"]["motor-7V"]["outputs"]["theta0"]["floors"] == pytest.approx(64.1, abs=0.5)
     swing = document["experiments"]["free-swing"]["outputs"]["theta1"]
     # the thesis's parameters swing about 3 % slower than the rig
     assert swing["period"]["measured"] == pytest.approx(0.5717, abs=5e-4)

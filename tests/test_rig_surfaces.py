@@ -139,9 +139,11 @@ def test_a_budget_that_runs_out_at_the_end_of_a_stage_gives_the_fit_so_far(tmp_p
     `min() arg is an empty sequence` after all the work."""
     spec = _shipped_spec(tmp_path, max_simulations=285)
     code, out, err = run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1")
-    assert code == 0, err
+    # a fit its budget stopped is not trusted: exit 1, the reason in its last line
+    assert code == 1, err
     assert "the budget was spent before it began" in err
     assert "note: stopped at max_simulations (285) in stage 2/5" in out
+    assert out.splitlines()[-1].startswith("verdict: NOT trusted") and "max_simulations" in out.splitlines()[-1]
     document = json.loads((tmp_path / "fit" / "fit.json").read_text())
     assert document["message"].startswith("stopped at max_simulations (285)")
     assert all(math.isfinite(p["value"]) for p in document["parameters"].values())
@@ -203,11 +205,11 @@ def test_identify_refuses_a_folder_that_is_not_its_run_and_leaves_nothing_stale(
     assert "holds files that are not a run of identify qube-servo-3" in line
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
     out = tmp_path / "fit"
-    assert run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--workers", "1")[0] == 0
+    assert run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--workers", "1", "--accept")[0] == 0
     (out / "old-overlay.png").write_text("a figure of an experiment the spec no longer has")
     (out / ".fit.json.0123456789abcdef.partial").write_text("left by a killed write")
     first = sorted(p.name for p in out.iterdir())
-    assert run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--workers", "1")[0] == 0
+    assert run_cli(capsys, "identify", "--no-profiles", str(spec), "-o", str(out), "--workers", "1", "--accept")[0] == 0
     after = sorted(p.name for p in out.iterdir())
     assert "old-overlay.png" not in after and not [n for n in after if n.endswith(".partial")]
     assert set(after) == set(first) - {"old-overlay.png", ".fit.json.0123456789abcdef.partial"}
@@ -219,7 +221,8 @@ def test_identify_on_workers_leaves_no_folder_in_the_temporary_directory(tmp_pat
     spec = _shipped_spec(tmp_path, max_simulations=60)
     temporary = tmp_path / "tmp"
     temporary.mkdir()
-    done = subprocess.run(CLI + ["identify", "--no-profiles", str(spec), "-o", str(tmp_path / "fit"), "--workers", "2"],
+    done = subprocess.run(CLI + ["identify", "--no-profiles", str(spec), "-o", str(tmp_path / "fit"), "--workers", "2",
+                                 "--accept"],
                           capture_output=True, text=True, timeout=300, env={**os.environ, "TMPDIR": str(temporary)})
     assert done.returncode == 0, done.stderr
     assert list(temporary.iterdir()) == []
@@ -250,7 +253,8 @@ def test_a_parameter_the_data_do_not_see_is_reported_without_an_interval(tmp_pat
     spec.write_text(f"plant: qube-servo-3\nexperiments: [{RIG / 'motor-7V.yaml'}]\nfree:\n"
                     "  R_a: {bounds: [1.0, 30.0]}\n  K_stop: {start: 1.0, bounds: [0.0, 100.0]}\n"
                     "max_simulations: 200\n")
-    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1")
+    # R_a alone cannot fit the 7 V run's arm (the verdict refuses it); what K_stop shows stands
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1", "--accept")
     assert code == 0, err
     stop = json.loads((tmp_path / "fit" / "fit.json").read_text())["parameters"]["K_stop"]
     assert stop["identifiable"] is False and stop["interval"] is None and stop["stderr"] is None

@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 import yaml
 
 from furuta_cosim.documents import dumps
+from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import folder, output_folder, write_text
 from furuta_cosim.identify.experiment import Experiment, load_experiment
 from furuta_cosim.identify.fit import FitResult, fit, with_values
@@ -26,7 +27,8 @@ from furuta_cosim.identify.split import parts_of
 from furuta_cosim.identify.verdict import line as verdict_line
 
 
-def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None) -> dict:
+def replay(experiments: Sequence[str | Path], target: Target, output: str | Path | None = None,
+           tolerance: float | None = None) -> dict:
     """Each experiment's logged inputs run open loop on ``target`` (or, for a log with a
     ``loop:``, the controller that ran closing the loop again): per output its RMS error (SI
     units) and, where it oscillates, its period.
@@ -40,12 +42,21 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     output : path, optional
         A folder for an overlay and a residual figure per experiment (PNG and SVG) and
         ``replay.json``.
+    tolerance : float, optional
+        Noise floors of RMS an output may replay within (identify/verdict.py; default 20).
 
     Returns
     -------
     dict
-        Per experiment and output: the RMS error and, where it oscillates, the period.
+        Per experiment and output: the RMS error, its noise floors and, where it oscillates,
+        the period; ``reproduced``: every experiment ran and every output is within
+        ``tolerance`` noise floors, else ``far`` lists those that are not.
     """
+    from furuta_cosim.identify.verdict import TOLERANCE, floor_of
+
+    tolerance = TOLERANCE if tolerance is None else tolerance
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not 0 < tolerance <= 1e6:
+        raise ConfigError([f"tolerance: expected a number of noise floors in (0, 1e6], got {tolerance!r}"])
     from furuta_cosim.identify.estimate import with_estimate
 
     loaded = [load_experiment(path) for path in experiments]
@@ -54,7 +65,7 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     # reports is the one identify reports for the same plant
     loaded = [with_estimate(e, target) for e in loaded]
     out = output_folder(output) if output is not None else None
-    document = {"plant": target.label, "experiments": {}}
+    document = {"plant": target.label, "tolerance": tolerance, "experiments": {}, "far": []}
     with open_session(target) as session:
         for experiment in loaded:
             try:
@@ -65,9 +76,16 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
             entry = {"file": str(experiment.path), "samples": experiment.samples,
                      "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
+            for output_name, c in entry["outputs"].items():
+                floor, what = floor_of(c)
+                c["floors"] = c["rms"] / floor if floor > 0 else None
+                c["floor_is"] = what
+                if not (c["floors"] is not None and c["floors"] <= tolerance):
+                    document["far"].append(f"{experiment.name} {output_name}")
             if out is not None:
                 entry["figures"] = [p.name for p in _figures(out, experiment, {target.label: simulated})]
             document["experiments"][experiment.name] = entry
+    document["reproduced"] = not document["far"] and not any("failure" in e for e in document["experiments"].values())
     if out is not None:
         write_text(out / "replay.json", dumps(document, indent=2) + "\n")
     return document
