@@ -34,6 +34,39 @@ from furuta_cosim.signals import controller_state
 REFERENCE_INPUT = "r"
 
 
+def _signals(linear, tracked: str | None, F: float, delay: bool) -> list[tuple[str, str, str]]:
+    """(name, unit, description) of the controller FMU's inputs and output: each fed-back
+    signal as the plant model declares it (fmu_src/furuta/model.py: its unit and its zero),
+    the reference, and the command."""
+    from furuta_cosim.fmu.exporter import declaration
+    from furuta_cosim.fmu.plants import load_plant
+
+    declared = {v.name: v for v in declaration(load_plant("furuta")).reals}
+    found = []
+    for name in linear.states:
+        v = declared.get(name)
+        if v is None:
+            found.append((name, "", f"fed back: the plant's {name}, in the model's units"))
+            continue
+        text = f"fed back: {v.description} ({v.unit or 'no unit'})"
+        if name == "theta1":
+            text += "; a rig whose encoder reads 0 hanging feeds its reading minus pi"
+        found.append((name, v.unit, text))
+    if tracked:
+        v = declared.get(tracked)
+        found.append((REFERENCE_INPUT, v.unit if v else "",
+                      f"reference for {tracked}" + (f" ({v.unit})" if v and v.unit else "")
+                      + f", through the prefilter F = {F:.6g}"))
+    else:
+        found.append((REFERENCE_INPUT, "", "reference (the controller file names no tracked output: F = 0)"))
+    command = linear.inputs[0]
+    v = declared.get(command)
+    found.append((command, v.unit if v else "",
+                  f"command: {v.description if v else command}, u = F r - Cc xc - Dc x"
+                  + ("; held one sample" if delay else "") + "; clip it to the amplifier's limit"))
+    return found
+
+
 def controller_plant(name: str | Path, *, period: float | None = None, model: str | None = None,
                      delay: int = 0) -> PlantSet:
     """The linear 'plant' of a controller file: what the exporter builds into its FMU."""
@@ -86,7 +119,8 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
                       + (", applied one sample late)" if delay else ")"),
                       True, float(period), 1, A.tolist(), B.tolist(), C.tolist(), D.tolist(),
                       [*linear.states, REFERENCE_INPUT], list(linear.inputs[:1]), states,
-                      [0.0] * len(states))
+                      [0.0] * len(states),
+                      signals=tuple(_signals(linear, cfile.tracked_output, F, bool(delay))))
     return PlantSet(cfile.name, cfile.path or Path(cfile.name), "linear",
                     spec.description, linear=spec)
 

@@ -102,3 +102,19 @@ def test_the_ecos_loop_without_ecos_is_one_error_naming_the_extra(monkeypatch):
     with pytest.raises(ConfigError, match=r"ecos_closed_loop runs the Ecos engine: ecospy is not installed "
                                           r"\(the ecos extra"):
         export.ecos_closed_loop(load_scenario("paper-step"), "lqr-paper", delay=1)
+
+
+def test_the_controller_fmu_says_what_each_signal_is(tmp_path):
+    """Every input said "control input" and the voltage "measured output": an engineer wiring
+    the FMU into Simulink could not tell the pendulum's zero or a unit."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(export_controller("lqr-qube", tmp_path / "lqr.fmu")))
+    signals = {v.name: v for v in md.modelVariables if v.causality in ("input", "output")
+               and not v.name.startswith(("v_", "xc"))}
+    assert {n: v.unit for n, v in signals.items()} == {"theta0": "rad", "dtheta0": "rad/s", "theta1": "rad",
+                                                       "dtheta1": "rad/s", "i": "A", "r": "rad", "V": "V"}
+    assert "0 = upright" in signals["theta1"].description and "minus pi" in signals["theta1"].description
+    assert "prefilter F = -0.498073" in signals["r"].description
+    assert signals["V"].causality == "output" and "clip" in signals["V"].description
+    assert not any(v.description in ("control input", "measured output") for v in signals.values())

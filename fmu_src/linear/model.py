@@ -25,15 +25,18 @@ def declare(spec):
     model = Model(spec.identifier, spec.description, discrete=spec.discrete)
     constants = {"LIN_NU": len(spec.inputs), "LIN_NY": len(spec.outputs)}
     constants["LIN_U0"] = len(model.reals)
+    said = {name: (unit, text) for name, unit, text in getattr(spec, "signals", ())}
     for name in spec.inputs:
-        model.register_variable(Real(name, "input", start=0.0, description="control input"))
+        unit, text = said.get(name, ("", "control input"))
+        model.register_variable(Real(name, "input", start=0.0, unit=unit, description=text))
     constants["LIN_V0"] = len(model.reals)
     for name in spec.states:
         model.register_variable(Real(f"v_{name}", "input", start=0.0,
                                      description=f"process noise on {name}"))
     constants["LIN_Y0"] = len(model.reals)
     for name in spec.outputs:
-        model.register_variable(Real(name, "output", description="measured output"))
+        unit, text = said.get(name, ("", "measured output"))
+        model.register_variable(Real(name, "output", unit=unit, description=text))
     for name, start in zip(spec.states, spec.x0):
         model.register_state(name, start, "", "state")
     constants["LIN_A0"] = _matrix(model, "A", spec.A, "state matrix")

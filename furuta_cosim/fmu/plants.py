@@ -31,6 +31,9 @@ class LinearSpec:
     states: list
     x0: list
     time_unit: str = "s"          # what one unit of time is: "s", or "samples" for a plant in samples
+    # (name, unit, description) of inputs and outputs that say more than "control input" and
+    # "measured output" (a controller FMU's: what each fed-back signal is, its unit, its zero)
+    signals: tuple = ()
 
 
 @dataclass(frozen=True)
