@@ -2,12 +2,13 @@
 run folder), the reference it followed, the rates' filter, the voltage limit and the board's
 delay, as the experiment file's `loop:` names them; a bad `loop:` is one line."""
 
+import json
 import math
 
 import pytest
 import yaml
 
-from helpers import one_line
+from helpers import one_line, run_cli
 
 QUANTUM = 2 * math.pi / 2048
 
@@ -65,15 +66,26 @@ def test_a_bad_loop_is_one_line(run, tmp_path, capsys, change, expected):
     assert str(path) in line and expected in line, line
 
 
-def test_a_delay_as_long_as_the_period_is_refused(run, tmp_path, capsys):
+def test_a_delay_of_whole_samples_replays_and_one_beyond_ten_is_refused(run, tmp_path, capsys):
+    """A board whose command reaches the motor a sample later (0.002 s at 500 Hz) is a loop the
+    replay closes (this log's board had 1 ms, so the replay says it is not reproduced); a delay
+    of more than 10 samples is a typo, refused with its key."""
     document = yaml.safe_load((run / "experiment.yaml").read_text())
-    document["loop"]["delay"] = 0.002
     document["data"] = str(run / "log.csv")
     document["loop"]["controller"] = str(run / document["loop"]["controller"])
     path = tmp_path / "late.yaml"
+    document["loop"]["delay"] = 0.002
+    path.write_text(yaml.safe_dump(document))
+    code, out, err = run_cli(capsys, "replay", str(path), "--plant", "qube-servo-3", "--json")
+    found = json.loads(out)
+    # it runs with the loop closed; the board's true delay was 1 ms, and one sample too long
+    # shows: the arm leaves its log by more than 20 quanta (not reproduced, exit 1)
+    assert code == 1 and found["experiments"]["run"]["loop"] == "closed", (out, err)
+    assert "run theta0" in found["far"] and "failure" not in found["experiments"]["run"]
+    document["loop"]["delay"] = 0.03
     path.write_text(yaml.safe_dump(document))
     line = one_line(capsys, "replay", str(path), "--plant", "qube-servo-3")
-    assert "loop.delay: 0.002 s is not shorter than the log's period" in line, line
+    assert "loop.delay: 0.03 s is more than 10 samples of the log (0.002 s each)" in line, line
 
 
 def test_a_swing_up_file_without_a_description_is_kept_readable(tmp_path):
