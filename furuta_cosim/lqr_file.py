@@ -56,7 +56,7 @@ def analyze_file(controller: str | Path, model: str | None = None) -> Design:
     cfile = check_fits(cfile, linear)
     c = cfile.controller
     sampling = cfile.period if not c.discrete and cfile.period else None
-    analysis = analyze(linear, c, sampling_period=sampling,
+    analysis = analyze(linear, c, margins=True, sampling_period=sampling,
                        tracked_output=cfile.tracked_output or default_output(linear))
     return Design(cfile, linear, analysis, cfile.path)
 

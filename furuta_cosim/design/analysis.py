@@ -176,7 +176,7 @@ def _sorted(eigenvalues: np.ndarray, discrete: bool) -> np.ndarray:
 
 def analyze(model: LinearModel, controller: GeneralizedController, *,
             sampling_period: float | None = None, tracked_output: str | None = None,
-            margin: float = MARGIN) -> Analysis:
+            margin: float = MARGIN, margins: bool = False) -> Analysis:
     """Analyse the loop of ``model`` and ``controller`` (see the module docstring).
 
     Parameters
@@ -191,6 +191,9 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
         Adds the prefilter and tracking bandwidth for this output.
     margin : float
         The stability margin: how far inside the stability region the poles must be.
+    margins : bool
+        Adds the gain, phase and disk margins at the plant input (design/margins.py; about a
+        second), for a stable single-input loop.
 
     Returns
     -------
@@ -227,11 +230,11 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
             problem = str(error)
         if F is not None and stable:
             bandwidth = tracking_bandwidth(model, controller, tracked_output, F)
-    margins = None
-    if stable and controller.Dc.shape[0] == 1 and model.B.shape[1] == 1:
+    found = None
+    if margins and stable and controller.Dc.shape[0] == 1 and model.B.shape[1] == 1:
         from furuta_cosim.design.margins import loop_margins
 
-        margins = loop_margins(model, controller)
+        found = loop_margins(model, controller)
     return Analysis(model.name, controller.name, period, eigenvalues, stable, dominant, ac,
                     controller_stable, variance, sampled, F, tracked_output, problem,
-                    model.time_unit, bandwidth, margins)
+                    model.time_unit, bandwidth, found)

@@ -26,7 +26,7 @@ import numpy as np
 from furuta_cosim.design.controller import GeneralizedController, discretize
 from furuta_cosim.design.linear import LinearModel
 
-GRID = 20000          # frequencies of the grid, log-spaced
+GRID = 4000           # frequencies of the grid, log-spaced (phase interpolated between them)
 LOWEST = 1e-3         # rad per time unit: the grid's lowest frequency
 HIGHEST = 1e4         # rad per time unit: a continuous loop's highest (a discrete one: Nyquist)
 
