@@ -397,3 +397,29 @@ def test_a_box_around_the_lqr_holds_the_published_controller(tmp_path, capsys):
     assert [origin for _, origin in design][:1] == ["initial lqr-paper"]
     assert not any("bo-paper" in line for line in lines) and len(design) == 10
     assert evaluator.score(published.controller).objective == pytest.approx(371.02, abs=0.01)
+
+
+@pytest.mark.slow
+def test_the_summary_says_what_its_headline_number_does_not(tmp_path):
+    """A headline of one objective hid a +47 % peak voltage and an 80 s mode: the summary
+    notes every metric worse than the baseline, a slow mode and a parameter at its edge."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.design.analysis import analyze
+
+    spec = load_spec("effort")
+    document = tune(spec, tmp_path / "run", n_calls=12, seed=0)
+    best, lqr = document["best"], document["baselines"]["lqr-paper"]
+    flags = document["flags"]
+    worse = [(label, key) for label, values in best["metrics"].items() for key, value in values.items()
+             if key in ("u.peak_abs", "u.rms", "error.ISE", "theta1.max_abs")
+             and value > 1.01 * lqr["metrics"][label][key]]
+    assert worse, "the 12-call run is worse than the LQR somewhere (its peak voltage, measured)"
+    for label, key in worse:
+        assert any(f.startswith(f"worse than lqr-paper on {label} {key}:") for f in flags), (label, key, flags)
+    evaluator = Evaluator(spec)
+    cfile = load_controller(tmp_path / "run" / "best.yaml")
+    slowest = analyze(evaluator.model, cfile.controller).dominant.settling_time
+    shortest = min(prepared.scenario.duration for _, prepared, _ in evaluator.runs())
+    assert (slowest > shortest) == any("slowest mode" in f for f in flags), (slowest, shortest, flags)
+    text = (tmp_path / "run" / "summary.md").read_text()
+    assert all(f"- note: {f}" in text for f in flags)

@@ -63,6 +63,8 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
                             "metrics": best["metrics"], "file": "best.yaml",
                             "prefilter": prefilter,
                             "controller": _matrices(_controller_of(load_controller(folder / "best.yaml")))}
+    if best is not None:
+        document["flags"] = flags(spec, evaluator, best, baselines)
     if spec.objective.type != "spectral":
         # the plant FMUs the scores came from, by content: a rebuilt FMU shows as another hash
         document["fmus"] = {prepared.fmu.name: _sha256(prepared.fmu) for _, prepared, _ in evaluator.runs()}
@@ -77,6 +79,51 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
     write_text(folder / "summary.md", summary_text(spec, document))
     return document
+
+
+EDGE = 0.01      # a tuned parameter within this fraction of its range from a bound is at its edge
+WORSE = 0.01     # a metric more than this fraction above the baseline's is worse
+
+
+def flags(spec, evaluator, best: dict, baselines: dict) -> list[str]:
+    """What the headline's one number does not say: a loop mode slower than the scenarios
+    that score it, a parameter at its range's edge, every metric worse than the first
+    baseline's (by more than WORSE)."""
+    found = []
+    names, bounds = evaluator.space.names, evaluator.space.bounds
+    for name, (low, high) in zip(names, bounds):
+        value = best["parameters"].get(name)
+        if value is None or not high > low:
+            continue
+        side = "lower" if value - low <= EDGE * (high - low) else "upper" if high - value <= EDGE * (high - low) else None
+        if side:
+            found.append(f"{name} = {value:.6g} is at the {side} edge of its range [{low:g}, {high:g}]: "
+                         "the best may lie beyond it")
+    if spec.objective.type == "spectral":
+        return found
+    from furuta_cosim.design.analysis import analyze
+
+    x = [best["parameters"][n] for n in names]
+    analysis = analyze(evaluator.model, evaluator.space.controller(x, "best"))
+    durations = [prepared.scenario.duration for _, prepared, _ in evaluator.runs()]
+    settling = analysis.dominant.settling_time
+    if durations and analysis.stable and settling > min(durations):
+        found.append(f"its slowest mode ({analysis.dominant.describe()}) settles (2 %) in about "
+                     f"{settling:.3g} s on the design model, longer than the shortest scenario "
+                     f"({min(durations):g} s): what the scenarios score does not see it settle")
+    first = next((n for n, b in baselines.items() if b.get("metrics")), None)
+    if first and best.get("metrics"):
+        worse = []
+        for label, values in best["metrics"].items():
+            theirs = baselines[first]["metrics"].get(label, {})
+            for key in ("u.peak_abs", "u.rms", "error.ISE", "theta1.max_abs",
+                        *(t.metric for t in spec.objective.all_terms)):
+                ours, other = values.get(key), theirs.get(key)
+                if ours is not None and other and ours > other * (1 + WORSE) and f"{label} {key}" not in worse:
+                    worse.append(f"{label} {key}")
+                    found.append(f"worse than {first} on {label} {key}: {ours:.4g} against {other:.4g} "
+                                 f"({(ours / other - 1) * 100:+.0f} %)")
+    return found
 
 
 def _early(records) -> dict:
@@ -144,6 +191,7 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
                 lines.append(f"- {key} = " + _matrix(matrices[key]))
         for key, value in (matrices.get("swingup") or {}).items():
             lines.append(f"- {key} = {value:.6g}")
+        lines += [f"- note: {flag}" for flag in document.get("flags") or []]
     else:
         lines.append("No feasible controller was found.")
     for name, digest in (document.get("fmus") or {}).items():
