@@ -395,9 +395,9 @@ def reproduce(output: str | Path, *, budget: str = "quick", workers: int = 1,
         log(f"running scenario {name}")
         document, _ = simulate_scenario(load_scenario(name), out / "runs" / name, every=10)
         runs[name] = document
-        for path in document["figures"]:
+        for path in document["figures"]:  # named relative to the run's folder
             if str(path).endswith(".svg"):
-                copy(path, figures / Path(path).name)
+                copy(out / "runs" / name / Path(path).name, figures / Path(path).name)
     claims += toy_claims(runs)
     log("paper-step with the Table's friction")
     claims += pendulum_claims(runs, friction_runs()) + sine_claims()

@@ -133,10 +133,11 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
                         prepared.time_unit)
     written += [f.name for f in figures]
     document = {"scenario": scenario.name, "description": scenario.description,
-                "plant": prepared.plant_name, "fmu": str(prepared.fmu),
+                "plant": prepared.plant_name, "fmu": Path(prepared.fmu).name,
+                "fmu_sha256": _sha256(prepared.fmu),
                 "control_period": prepared.control_period, "time_unit": prepared.time_unit,
                 "steps": prepared.steps, "trace_every": every, "controllers": entries,
-                "unchecked": notes, "figures": [str(f) for f in figures],
+                "unchecked": notes, "figures": [f.name for f in figures],
                 "files": sorted(written + ["metrics.json"]),
                 "passed": all(r.passed for r in results.values())}
     write_text(out / "metrics.json", dumps(document, indent=2) + "\n")
@@ -195,3 +196,10 @@ def _files_of_earlier_run(folder: Path) -> set[str]:
             ours.add(name)
     return ours
 
+
+
+def _sha256(path) -> str:
+    """The FMU by its content: the file itself stays in the cache of the machine that ran."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

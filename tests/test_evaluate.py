@@ -52,7 +52,8 @@ def test_run_result_round_trips_through_json_and_csv(paper_step, tmp_path):
         result = evaluate(paper_step, session, "bo-paper")
     assert result.metrics["theta1.SettlingTime"] == np.inf  # unstable on the calibrated plant
     entry = json.loads(json.dumps(result.save(tmp_path), allow_nan=False))
-    back = RunResult.from_dict(entry)
+    back = RunResult.from_dict(entry, base=tmp_path)
+    assert entry["trace"] == "bo-paper.csv"  # beside the JSON, not where it was written from
     assert back.metrics == result.metrics and back.requirements == result.requirements
     assert (back.scenario, back.controller, back.failure) == (result.scenario, result.controller, None)
     assert_same_trace(back.trace, result.trace)

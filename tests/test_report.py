@@ -1,6 +1,7 @@
 """Self-contained HTML reports, checked in a real browser; the paper reproduction."""
 
 import io
+import json
 import re
 from pathlib import Path
 
@@ -178,3 +179,24 @@ def test_each_verdict_rule_on_numbers_by_hand():
     assert within([1.0 + 1e-10], [1.0], 1e-9) and not within([1.0 + 1e-8], [1.0], 1e-9)
     assert below(0.99, 1.0) and not below(1.0, 1.0) and not below(float("nan"), 1.0)
     assert at_most(1.0, 1.0) and not at_most(float("inf"), 1.0)
+
+
+def test_a_run_folder_moved_elsewhere_is_whole(tmp_path, capsys):
+    """metrics.json named each trace by the absolute path it was written to: a run folder moved
+    or shared pointed back to the machine it came from."""
+    import shutil
+
+    code, out, err = run_cli(capsys, "simulate", "paper-step", "-o", str(tmp_path / "here"))
+    assert code in (0, 1), err
+    text = (tmp_path / "here" / "metrics.json").read_text()
+    assert str(tmp_path) not in text
+    shutil.move(tmp_path / "here", tmp_path / "moved")
+    code, out, err = run_cli(capsys, "report", str(tmp_path / "moved"))
+    assert code == 0, err
+    page = (tmp_path / "moved" / "report.html").read_text()
+    assert str(tmp_path / "here") not in page and "<svg" in page
+    document = json.loads((tmp_path / "moved" / "metrics.json").read_text())
+    from furuta_cosim.cosim.result import RunResult
+
+    trace = RunResult.from_dict(document["controllers"]["lqr-paper"], base=tmp_path / "moved").trace
+    assert len(trace.t) > 100

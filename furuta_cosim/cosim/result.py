@@ -48,14 +48,16 @@ class RunResult:
         """Write the trace to ``<folder>/<controller>.csv`` (every ``every``-th sample; none
         with ``trace=False``) and return the JSON entry that points to it."""
         path = self.trace.to_csv(Path(folder) / f"{self.controller}.csv", every=every) if trace else None
-        return self.to_dict(path)
+        # named relative to the folder: a folder moved or shared stays whole
+        return self.to_dict(Path(path).name if path else None)
 
     @classmethod
     def from_dict(cls, data: dict, base: str | Path | None = None) -> "RunResult":
-        """Read a result back from its JSON entry and its CSV (relative to ``base``)."""
+        """Read a result back from its JSON entry and its CSV (relative to ``base``, the JSON's
+        folder)."""
         path = Path(data["trace"]) if data.get("trace") else None
-        if path is not None and base is not None and not path.is_absolute() and not path.exists():
-            path = Path(base) / path.name
+        if path is not None and base is not None and (not path.is_absolute() or not path.exists()):
+            path = Path(base) / path.name  # beside the JSON (an older file's absolute path: moved)
         if path is not None:
             trace = Trace.from_csv(path, data["controller"], data["tracked"], data.get("input", "u"))
         else:

@@ -84,7 +84,8 @@ def _simulate(folder: Path) -> tuple[str, str, list]:
     md += [f"- not checked: {note}" for note in data.get("unchecked", [])]
     fmu = data.get("fmu")
     provenance = {"plant": data.get("plant"), "FMU": Path(fmu).name if fmu else None,
-                  "FMU sha256": _hash(fmu) if fmu else None, "control period": data.get("control_period"),
+                  "FMU sha256": (str(data["fmu_sha256"])[:16] if data.get("fmu_sha256") else
+                                 _hash(fmu) if fmu else None), "control period": data.get("control_period"),
                   "steps": data.get("steps")}
     figures = [folder / Path(f).name for f in data.get("figures", []) if str(f).endswith(".svg")]
     return f"simulate {data.get('scenario')}", "\n".join(md), [provenance, figures]
