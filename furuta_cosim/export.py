@@ -176,7 +176,7 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     unsupported = [key for key, present in (
         ("reference (not constant)", not _constant(prepared.rbar)), ("noise", scenario.noise),
         ("disturbances", scenario.disturbances), ("estimator", scenario.estimator),
-        ("actuator", scenario.actuator_limit), ("timing.communication_step", prepared.substeps != 1))
+        ("actuator limit", prepared.limit), ("timing.communication_step", prepared.substeps != 1))
         if present]
     if unsupported:
         raise ConfigError([f"{scenario.source}: the Ecos loop has only plant and controller; "

@@ -107,6 +107,33 @@ def test_actuator_limit_clips_the_applied_input():
     assert np.max(np.abs(trace["u_command"])) > 15.0
 
 
+def test_one_voltage_limit_the_smallest_stated_and_u_is_what_the_motor_got(tmp_path):
+    from furuta_cosim.cosim.master import on_plant
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.rig.supervisor import Limits
+
+    scenario = dataclasses.replace(load_scenario("recovery"), controllers=("lqr-paper",))
+    free = simulate(prepare(scenario))["lqr-paper"]
+    assert free.metrics["u.peak_abs"] > 15.0 and "u_command" not in free.trace.signals
+    # the model's V_max alone: the command is clipped before the plant, u is the applied voltage
+    result = simulate(prepare(scenario, overrides={"V_max": 15.0}))["lqr-paper"]
+    assert np.max(np.abs(result.trace.u)) == pytest.approx(15.0)
+    assert result.metrics["u.peak_abs"] == pytest.approx(15.0)
+    assert np.max(np.abs(result.trace["u_command"])) > 15.0
+    # a rig plant file's limits.voltage (the amplifier's), tightened by the scenario's actuator
+    plant = tmp_path / "rig.yaml"
+    plant.write_text("model: furuta\nextends: paper-calibrated\nlimits: {voltage: 12.0}\n")
+    on_rig = on_plant(scenario, plant)
+    assert prepare(on_rig).limit == 12.0
+    assert prepare(dataclasses.replace(on_rig, actuator_limit=20.0)).limit == 12.0
+    assert prepare(dataclasses.replace(on_rig, actuator_limit=9.0)).limit == 9.0
+    assert prepare(on_rig, overrides={"V_max": 11.0}).limit == 11.0
+    assert np.max(np.abs(simulate(prepare(on_rig))["lqr-paper"].trace.u)) == pytest.approx(12.0)
+    # the rig's supervisor clips to the same number
+    assert Limits.of(load_plant(plant)).voltage == 12.0
+    assert Limits.of(load_plant("paper-calibrated")).voltage is None
+
+
 def test_one_fmu_instance_serves_every_controller_with_a_reset():
     _, traces, _ = run("paper-step")
     assert traces["lqr-paper"]["theta1"][0] == traces["bo-paper"]["theta1"][0] == 0.1

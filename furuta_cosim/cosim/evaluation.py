@@ -265,7 +265,7 @@ def _run(prepared: Prepared, session, compiled: Compiled, progress, watch=None):
         estimator.reset()
     sources = prepared.measured if estimator else prepared.states
     pick = [prepared.signals.index(n) for n in sources]
-    limit = scenario.actuator_limit
+    limit = prepared.limit
     loop = loop_for(len(sources), None if pick == list(range(len(outputs))) else tuple(pick),
                     tuple(sources.index(n) for n in prepared.noisy), bool(estimator),
                     controller.n_xc > 0, bool(limit), len(prepared.disturbances), prepared.substeps)

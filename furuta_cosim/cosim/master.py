@@ -26,7 +26,7 @@ import numpy as np
 from furuta_cosim.defaults import PAPER_PERIOD, TRACKED_OUTPUT
 from furuta_cosim.errors import ConfigError, DesignError, FmuError, PlantUnfit
 from furuta_cosim.fmu.exporter import build_fmu
-from furuta_cosim.fmu.plants import PlantSet, load_plant
+from furuta_cosim.fmu.plants import PlantSet, load_plant, voltage_limit
 from furuta_cosim.fmu.session import SESSIONS, model_description, refuse_clocks
 from furuta_cosim.fmu.variables import declared_conversion, dimension_problem, is_real, settable_start, unit_problems
 from furuta_cosim.metrics import catalogue, problem, step_segments
@@ -77,6 +77,10 @@ class Prepared:
     # FMU variable -> (scale, offset): view value = scale * FMU value + offset (plant.mapping,
     # or a declared unit such as deg); an input is set to (view value - offset) / scale
     conversions: dict = field(default_factory=dict)
+    # the voltage limit every command is clipped to before the plant (None: none), the
+    # smallest of the scenario's actuator.limit, the plant file's limits.voltage (the
+    # amplifier's) and the model's V_max parameter: ``limit_of``
+    limit: float | None = None
     key: str = field(default_factory=lambda: uuid.uuid4().hex)
     _estimator: object = field(default=None, repr=False, compare=False)
 
@@ -233,7 +237,8 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
         if name not in allowed:
             fail(f"noise.measurement.{name}", f"not a fed-back signal (fed back: {', '.join(allowed)})")
 
-    others = list(process) + ([COMMAND] if scenario.actuator_limit else []) + \
+    limit = limit_of(scenario, plant, start)
+    others = list(process) + ([COMMAND] if limit else []) + \
         ([estimate(n) for n in states] if scenario.estimator else [])
     t = np.arange(steps) * period
     rbar = scenario.reference(t)
@@ -278,10 +283,25 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                         tracked, period, step, steps, unit, t, rbar, disturbance, measurement,
                         noisy, measured=measured, metrics=known,
                         units=declared,
-                        conversions=conversions)
+                        conversions=conversions, limit=limit)
     if scenario.estimator:
         prepared.kalman = _kalman(prepared, state_outputs)
     return prepared
+
+
+def limit_of(scenario: Scenario, plant: PlantSet | None, start: dict) -> float | None:
+    """The one voltage limit of a run: the smallest of those stated (None if none is).
+
+    The amplifier's limit is a fact of the rig, stated once in its plant file as
+    ``limits.voltage`` (the supervisor of ``rig run`` holds the rig to the same number); a
+    scenario's ``actuator.limit`` is a design limit that may only tighten it; the model's
+    ``V_max`` parameter (0 = none) is how the plant FMU carries a limit outside this tool. Every
+    simulation clips the command to this limit before the plant, so the trace's ``u`` is the
+    voltage the motor got and ``u_command`` what the controller asked for.
+    """
+    stated = [scenario.actuator_limit, voltage_limit(plant, start) if plant else None]
+    stated = [v for v in stated if v is not None]
+    return min(stated) if stated else None
 
 
 def on_plant(scenario: Scenario, plant: str | Path) -> Scenario:

@@ -87,7 +87,7 @@ class NativeLoop:
         loop.substeps, loop.n_out, loop.n_s = prepared.substeps, n_out, n_s
         loop.n_noisy, loop.n_d, loop.n_xc = len(noisy), len(prepared.disturbances), m
         loop.F, loop.delay, loop.held = runtime.F, runtime.delay, 0.0
-        limit = prepared.scenario.actuator_limit
+        limit = prepared.limit
         loop.limited, loop.limit = bool(limit), float(limit or 0.0)
         for name, array in keep.items():
             setattr(loop, name, _FFI.cast("int *" if array.dtype == np.intc else "double *",

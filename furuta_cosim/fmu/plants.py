@@ -54,6 +54,20 @@ class PlantSet:
     sensors: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
 
 
+def voltage_limit(plant: PlantSet, parameters: Mapping[str, float] | None = None) -> float | None:
+    """The amplifier's voltage limit a plant file states (None: none): its ``limits.voltage``,
+    or the model's ``V_max`` parameter when that is > 0 (the smaller if both are stated).
+
+    ``parameters`` are the values in force (a variant's) when not the file's own. One number
+    serves the simulation (every command clipped to it before the plant) and the rig's
+    supervisor (every command clipped to it before the board).
+    """
+    values = parameters if parameters is not None else plant.parameters
+    stated = [plant.limits.get("voltage"), values.get("V_max") if plant.linear is None else None]
+    stated = [float(v) for v in stated if v is not None and float(v) > 0.0]
+    return min(stated) if stated else None
+
+
 def content_sha256(plant: PlantSet) -> str:
     """A digest of what a plant is, whatever file holds it and whatever it extends: its model,
     its resolved parameters and its limits (two files with the same values give the same)."""

@@ -232,8 +232,8 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     reference = np.zeros(steps) if reference is None else np.asarray(reference, dtype=float)
     limits = limits or Limits.of(plant)
     if limits.voltage is None:
-        log(f"warning: {plant.path}: limits.voltage is not set: commands go to the board unclipped "
-            "(set your amplifier's limit)")
+        log(f"warning: {plant.path}: no voltage limit (limits.voltage): commands go to the board "
+            "unclipped (set your amplifier's limit)")
     supervisor = Supervisor(limits, period)
     counts = float(plant.sensors.get("encoder_counts", 2048))
     signs = (float(plant.sensors.get("arm_sign", 1)), float(plant.sensors.get("pendulum_sign", 1)))

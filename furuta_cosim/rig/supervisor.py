@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from furuta_cosim.fmu.plants import voltage_limit
+
 # the exit codes of a rig run, one per way it ends (the CLI's and the docs' table)
 FINISHED, TRIPPED, INTERRUPTED, TERMINATED = 0, 1, 130, 143
 
@@ -70,6 +72,7 @@ class Limits:
             Limits to use instead of the file's (``late_periods=10``).
         """
         known = {k: float(v) for k, v in plant.limits.items() if k in cls.__dataclass_fields__}
+        known["voltage"] = voltage_limit(plant)  # limits.voltage, or the model's V_max
         known.update(changes)
         return cls(**known)
 
