@@ -150,8 +150,8 @@ def synthetic_log(folder: Path, seed: int = 0) -> Path:
     (folder / "prbs.csv").write_text("t,V,theta,I\n" + "".join(
         f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(t.tolist(), V.tolist(), theta.tolist(), current.tolist())))
     (folder / "prbs.yaml").write_text(
-        "data: prbs.csv\ncolumns: [t, V, theta, I]\ntime: t\ninputs: {V: {column: V}}\n"
-        f"outputs:\n  theta0: {{column: theta, quantum: {QUANTUM!r}}}\n  i: {{column: I, noise: 0.004}}\n"
+        "data: prbs.csv\ncolumns: [t, V, theta, I]\ntime: t\ninputs: {V: {column: V, unit: V}}\n"
+        f"outputs:\n  theta0: {{column: theta, unit: rad, quantum: {QUANTUM!r}}}\n  i: {{column: I, unit: A, noise: 0.004}}\n"
         "start: {theta0: 0.0, dtheta0: 0.0, theta1: 3.141592653589793, dtheta1: 0.0, i: 0.0}\n")
     spec = folder / "spec.yaml"
     spec.write_text("name: synthetic\nplant: qube-servo-3\nexperiments: [prbs.yaml]\nfree:\n"

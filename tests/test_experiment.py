@@ -54,7 +54,7 @@ def _write(folder: Path, csv: bytes | str, **keys) -> Path:
     data = folder / "log.csv"
     data.write_bytes(csv if isinstance(csv, bytes) else csv.encode())
     spec = {"data": "log.csv", "columns": "[t, v, y]", "time": "t",
-            "inputs": "{V: {column: v}}", "outputs": "{theta0: {column: y, unit: rad}}"}
+            "inputs": "{V: {column: v, unit: V}}", "outputs": "{theta0: {column: y, unit: rad}}"}
     spec.update({k: v for k, v in keys.items() if v is not None})
     for key in [k for k, v in keys.items() if v is None]:
         spec.pop(key)
@@ -77,8 +77,9 @@ GOOD = "t,v,y\n0,1,0\n0.01,1,0.1\n0.02,1,0.2\n0.03,1,0.3\n"
     (GOOD, {"window": "[0.02, 0.01]"}, r"e.yaml: window: expected \[start, end\] with start < end"),
     (GOOD, {"outputs": "{theta0: {column: y, unit: furlong}}"}, r"e.yaml: outputs.theta0.unit: unknown unit 'furlong'"),
     (GOOD, {"outputs": "{theta0: {column: z}}"}, r"e.yaml: outputs.theta0.column: 'z' is not one of columns"),
+    (GOOD, {"outputs": "{theta0: {column: y}}"}, r"e.yaml: outputs.theta0: give the unit of column 'y' \(unit: one of rad, deg"),
     (GOOD, {"outputs": "{theta0: {column: y, unit: rad, scale: 2}}"}, r"e.yaml: outputs.theta0: give unit or scale, not both"),
-    (GOOD, {"outputs": "{theta0: {column: y, quantum: -1}}"}, r"e.yaml: outputs.theta0.quantum: must be >= 0"),
+    (GOOD, {"outputs": "{theta0: {column: y, unit: rad, quantum: -1}}"}, r"e.yaml: outputs.theta0.quantum: must be >= 0"),
     (GOOD, {"outputs": "{}"}, r"e.yaml: outputs: names no output"),
     (GOOD, {"time": "s"}, r"e.yaml: time: 's' is not one of columns"),
     (GOOD, {"data": "missing.csv"}, r"e.yaml: data: .*missing.csv: no such file"),
@@ -120,7 +121,7 @@ def test_fewer_samples_than_free_parameters_is_refused(tmp_path):
 def test_names_the_plant_lacks_are_refused_before_any_simulation(tmp_path):
     from furuta_cosim.identify.replay import check_names, target_for
 
-    path = _write(tmp_path, GOOD, inputs="{U: {column: v}}", outputs="{phi: {column: y}}",
+    path = _write(tmp_path, GOOD, inputs="{U: {column: v, unit: V}}", outputs="{phi: {column: y, unit: rad}}",
                   parameters="{mass: 1.0}")
     with pytest.raises(ConfigError) as caught:
         check_names(target_for(plant="qube-servo-3"), [load_experiment(path)])

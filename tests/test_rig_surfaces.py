@@ -362,7 +362,7 @@ def test_a_list_of_variants_has_a_limit(tmp_path, capsys):
 
 def _experiment(folder: Path, outputs: str, **extra) -> Path:
     (folder / "log.csv").write_text("t,v,y\n" + "".join(f"{0.002 * k!r},1,{0.001 * k!r}\n" for k in range(50)))
-    text = (f"data: log.csv\ncolumns: [t, v, y]\ntime: t\ninputs: {{V: {{column: v}}}}\n"
+    text = (f"data: log.csv\ncolumns: [t, v, y]\ntime: t\ninputs: {{V: {{column: v, unit: V}}}}\n"
             f"outputs: {outputs}\nstart: {{theta1: 3.141592653589793}}\n")
     text += "".join(f"{k}: {v}\n" for k, v in extra.items())
     path = folder / "e.yaml"
@@ -372,7 +372,7 @@ def _experiment(folder: Path, outputs: str, **extra) -> Path:
 
 @pytest.mark.parametrize("outputs, extra, expected", [
     ("{V: {column: y, unit: V}}", {}, "outputs.V: V is an input of qube-servo-3, not an output it computes"),
-    ("{R_a: {column: y}}", {}, "outputs.R_a: R_a is an parameter"),
+    ("{R_a: {column: y, scale: 1}}", {}, "outputs.R_a: R_a is an parameter"),
     ("{theta0: {column: y, unit: A}}", {}, "outputs.theta0.unit: A is a unit of a current, but theta0 is in rad"),
     ("{i: {column: y, unit: deg}}", {}, "outputs.i.unit: deg is a unit of an angle, but i is in A"),
     ("{theta0: {column: y, unit: rad}}", {"parameters": "{theta1_start: 0.3}"},
@@ -470,7 +470,7 @@ def test_a_long_extends_chain_is_one_line(tmp_path, capsys):
 def test_a_cell_is_an_ascii_decimal_number(tmp_path, capsys, cell):
     (tmp_path / "log.csv").write_text(f"t;v;y\n0;1;0\n0.002;{cell};0\n0.004;1;0\n", encoding="utf-8")
     path = tmp_path / "e.yaml"
-    path.write_text("data: log.csv\ndelimiter: ';'\ncolumns: [t, v, y]\ntime: t\ninputs: {V: {column: v}}\n"
+    path.write_text("data: log.csv\ndelimiter: ';'\ncolumns: [t, v, y]\ntime: t\ninputs: {V: {column: v, unit: V}}\n"
                     "outputs: {theta0: {column: y, unit: rad}}\n")
     line = one_line(capsys, "replay", str(path), "--plant", "qube-servo-3")
     assert "log.csv: line 3, column v: not a number" in line and "ASCII decimal" in line, line
@@ -483,7 +483,7 @@ def test_a_million_row_log_is_read_in_bounded_memory(tmp_path):
     with open(tmp_path / "log.csv", "w") as handle:
         handle.write("t,v,y\n")
         np.savetxt(handle, np.column_stack([t, np.zeros(n), np.zeros(n)]), delimiter=",", fmt="%.9g")
-    (tmp_path / "e.yaml").write_text("data: log.csv\ncolumns: [t, v, y]\ntime: t\ninputs: {V: {column: v}}\n"
+    (tmp_path / "e.yaml").write_text("data: log.csv\ncolumns: [t, v, y]\ntime: t\ninputs: {V: {column: v, unit: V}}\n"
                                      "outputs: {theta0: {column: y, unit: rad}}\n")
     # the peak of this process's own memory (VmHWM; ru_maxrss carries the parent's over a fork)
     program = ("import re; from furuta_cosim.identify.experiment import load_experiment; "

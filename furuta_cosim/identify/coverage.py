@@ -75,8 +75,8 @@ def coverage_study(replicates: int = 50, *, plant: str = "qube-servo-3", phi: fl
     with tempfile.TemporaryDirectory(prefix="furuta-coverage-") as folder:
         folder = Path(folder)
         (folder / "log.yaml").write_text(
-            "data: log.csv\ncolumns: [t, V, theta, I]\ntime: t\ninputs: {V: {column: V}}\n"
-            f"outputs:\n  theta0: {{column: theta, quantum: {quantum!r}}}\n  i: {{column: I, noise: {noise!r}}}\n"
+            "data: log.csv\ncolumns: [t, V, theta, I]\ntime: t\ninputs: {V: {column: V, unit: V}}\n"
+            f"outputs:\n  theta0: {{column: theta, unit: rad, quantum: {quantum!r}}}\n  i: {{column: I, unit: A, noise: {noise!r}}}\n"
             "start: {theta0: 0.0, dtheta0: 0.0, theta1: 3.141592653589793, dtheta1: 0.0, i: 0.0}\n")
         (folder / "spec.yaml").write_text(
             f"name: coverage\nplant: {plant}\nexperiments: [log.yaml]\nfree:\n" + "".join(

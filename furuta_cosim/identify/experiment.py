@@ -486,6 +486,11 @@ def _signal(check: Checker, entry, key: str, table, columns, keep, extra=()) -> 
     if "unit" in section and "scale" in section:
         check.fail(key, "give unit or scale, not both")
         return None
+    if "unit" not in section and "scale" not in section:
+        # a column read in the wrong unit replays as an error of thousands of degrees: say it
+        check.fail(key, f"give the unit of column {excerpt(column)} (unit: one of {', '.join(UNITS)}; "
+                        "the model's own are rad, rad/s, A and V) or a scale to SI")
+        return None
     factor = 1.0
     if "unit" in section:
         unit = section["unit"]
