@@ -200,3 +200,44 @@ def test_a_run_folder_moved_elsewhere_is_whole(tmp_path, capsys):
 
     trace = RunResult.from_dict(document["controllers"]["lqr-paper"], base=tmp_path / "moved").trace
     assert len(trace.t) > 100
+
+
+def _paths_in(folder, tmp_path):
+    """Every text file of ``folder`` that names a path under ``tmp_path`` (the machine's)."""
+    found = []
+    for path in folder.rglob("*"):
+        if path.is_file() and path.suffix in (".json", ".md", ".yaml", ".html", ".csv", ".txt"):
+            if str(tmp_path) in path.read_text(errors="replace"):
+                found.append(path.name)
+    return found
+
+
+@pytest.mark.slow
+def test_rig_replay_and_tuning_folders_name_no_path_of_the_machine(tmp_path, capsys):
+    """A rig run's summary named its plant file by absolute path and replay.json its experiment:
+    a folder moved or shared pointed back to the machine it came from. Every report names its
+    files relative to its folder (and the plant by name and content hash); a moved rig folder's
+    log replays as it did."""
+    import shutil
+
+    rig = tmp_path / "rig"
+    code, out, err = run_cli(capsys, "rig", "run", "swingup-qube", "--board", "virtual:fast",
+                             "--duration", "2", "-o", str(rig))
+    assert code == 0, err
+    summary = json.loads((rig / "summary.json").read_text())
+    assert summary["plant"] == "qube-servo-3.yaml" and len(summary["plant_sha256"]) == 64
+    code, out, err = run_cli(capsys, "replay", str(rig / "experiment.yaml"), "--plant", "qube-servo-3",
+                             "-o", str(tmp_path / "replay"))
+    assert code in (0, 1), err  # 1: its current's replay is beyond 20 noise floors (a swing-up)
+    first = json.loads((tmp_path / "replay" / "replay.json").read_text())
+    code, out, err = run_cli(capsys, "tune", "paper-spectral", "--n-calls", "3", "-o", str(tmp_path / "tune"))
+    assert code == 0, err
+    for folder in ("rig", "replay", "tune"):
+        assert _paths_in(tmp_path / folder, tmp_path) == [], folder
+    shutil.move(rig, tmp_path / "moved")
+    code, out, err = run_cli(capsys, "replay", str(tmp_path / "moved" / "experiment.yaml"),
+                             "--plant", "qube-servo-3", "-o", str(tmp_path / "again"))
+    assert code in (0, 1), err
+    again = json.loads((tmp_path / "again" / "replay.json").read_text())
+    assert again["experiments"] == first["experiments"]
+    assert first["experiments"]["rig"]["outputs"]["theta1"]["floors"] < 1.0

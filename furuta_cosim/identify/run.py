@@ -73,7 +73,8 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
             except SimulationFailed as error:
                 document["experiments"][experiment.name] = {"failure": str(error)}
                 continue
-            entry = {"file": str(experiment.path), "samples": experiment.samples,
+            entry = {"file": experiment.path.name, "data": experiment.data.name,
+                     "sha256": experiment.sha256, "samples": experiment.samples,
                      "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
             for output_name, c in entry["outputs"].items():

@@ -34,6 +34,7 @@ import yaml
 from furuta_cosim.documents import dumps
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import folder as make_folder, output_folder, write_text
+from furuta_cosim.fmu.plants import content_sha256
 from furuta_cosim.measurement import RATE_FILTER, RateFilter
 from furuta_cosim.rig.board import Board
 from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TERMINATED, TRIPPED, Limits,
@@ -370,7 +371,8 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
     if limits.voltage is None:
         warnings.append("the rig's plant file states no voltage limit: commands went unclipped")
     summary = {"status": status, "code": code, "reason": reason, "board": board.name,
-               "plant": str(plant.path), "controller": name, "scenario": str(scenario) if scenario else None,
+               "plant": plant.path.name, "plant_sha256": content_sha256(plant), "controller": name,
+               "scenario": Path(scenario).name if scenario else None,
                "period": period, "samples": int(len(rows)), "seconds": float(len(rows) * period),
                "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started_wall)),
                "safe": not failed, "safe_failures": failed, "timing": timing, "warnings": warnings,

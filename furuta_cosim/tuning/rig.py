@@ -606,7 +606,7 @@ def rig_identity(trials) -> dict:
     else:
         found["folder"] = str(trials.folder)
     if plant is not None:
-        found["plant"] = str(plant.path)
+        found["plant"] = plant.path.name  # the hash says which; a moved run folder stays whole
         found["plant_sha256"] = content_sha256(plant)
     return found
 
