@@ -725,7 +725,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help="print JSON")
     q.set_defaults(handler=cmd_design_lqr)
 
-    p = commands.add_parser("analyze", help="stability, dominant mode and prefilter of a controller")
+    p = commands.add_parser("analyze", help="stability, margins, dominant mode and prefilter of a controller")
     p.add_argument("controller", help="controller file or name in scenarios/controllers")
     p.add_argument("--model", help="model (default: the one the file names)")
     p.add_argument("--plant", metavar="PLANT", help="analyze on this plant file's linearization "
@@ -835,7 +835,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="worker processes for the tunings (default: one per core)")
     p.set_defaults(handler=cmd_reproduce)
 
-    p = commands.add_parser("replay", help="run logged inputs open loop on a plant and compare with the log")
+    p = commands.add_parser("replay", help="run a log's inputs (and its loop, if it names one) on a plant and compare")
     p.add_argument("experiments", nargs="+", help="experiment files (YAML naming a CSV log)")
     p.add_argument("--plant", default="furuta", help="plant file or name (default: furuta)")
     p.add_argument("--fmu", help="a plant FMU from another tool instead of --plant")

@@ -107,12 +107,17 @@ def test_the_parameter_check_finds_an_undocumented_one():
     assert _documented(inspect.getdoc(f)) == {"a"}
 
 
-def test_a_recorded_benchmark_shows_as_stale_once_the_code_it_measures_changed(tmp_path):
+def _hooks():
     sys.path.insert(0, str(ROOT / "tools"))
     try:
         import docs_hooks
     finally:
         sys.path.pop(0)
+    return docs_hooks
+
+
+def test_a_recorded_benchmark_shows_as_stale_on_the_performance_page_once_its_code_changed(tmp_path):
+    docs_hooks = _hooks()
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                           text=True, check=True).stdout.strip()
     first = subprocess.run(["git", "rev-list", "--max-parents=0", "HEAD"], cwd=ROOT, capture_output=True,
@@ -120,7 +125,38 @@ def test_a_recorded_benchmark_shows_as_stale_once_the_code_it_measures_changed(t
     for name, commit in (("fresh", head), ("old", first)):
         (tmp_path / f"{name}.txt").write_text(f"command: python tools/bench_x.py\ncommit: {commit}\n"
                                               "measures: furuta_cosim\n\n| a | b |\n")
-    fresh = docs_hooks.benchmark("fresh", tmp_path)
-    assert "Stale" not in fresh and f"Recorded at commit `{head}` by `python tools/bench_x.py`" in fresh
-    old = docs_hooks.benchmark("old", tmp_path)
-    assert old.startswith('!!! warning "Stale"') and "run `python tools/bench_x.py` again" in old
+    # a user page shows the figures and the command, never a commit or a staleness marker
+    for name in ("fresh", "old"):
+        shown = docs_hooks.benchmark(name, tmp_path)
+        assert shown.startswith("Measured by `python tools/bench_x.py`") and "| a | b |" in shown
+        assert head not in shown and first not in shown and "Stale" not in shown
+    table = docs_hooks.records_table(tmp_path)
+    assert f"| fresh | `python tools/bench_x.py` | `{head}` |" in table and f"`{first}`" in table
+    stale = docs_hooks.stale_records(tmp_path)
+    assert stale.startswith('!!! warning "Stale records"') and "**old**" in stale and "**fresh**" not in stale
+
+
+def test_every_page_reads_on_the_repository_host_as_on_the_site():
+    """The generated parts (the commands reference, the registries' tables, the set-up commands,
+    the benchmarks' figures) are written into the pages, so the repository host shows them too:
+    each is what the code and the records give now."""
+    # argparse's help layout changes between Python releases: the commands reference is checked
+    # for every command and option below, the other parts to the character
+    assert _hooks().write_pages(check=True, keep=("commands",)) == [], \
+        "run: python3 tools/docs_hooks.py --write"
+    from furuta_cosim.cli import build_parser
+
+    reference = (ROOT / "docs" / "pages" / "commands.md").read_text()
+    for action in build_parser()._actions:
+        for name, sub in (action.choices or {}).items() if isinstance(action.choices, dict) else ():
+            assert f"## furuta-cosim {name}" in reference or f"## furuta-cosim {name} " in reference, name
+            for option in sub._actions:
+                for string in option.option_strings:
+                    assert string in reference, (name, string)
+    for page in (ROOT / "docs" / "pages").glob("*.md"):
+        text = page.read_text()
+        assert "<!-- generated:" not in text or "<!-- end generated -->" in text, page.name
+        if page.name not in ("performance.md",):
+            # commit hashes, issue numbers and staleness markers live on the Performance page
+            assert "Stale" not in text and not re.search(r"\bissue \d+", text, re.I), page.name
+            assert not re.search(r"commit `[0-9a-f]{7,}`", text), page.name

@@ -1,31 +1,55 @@
-"""MkDocs hooks of the docs site (``docs/mkdocs.yml``): the pages that are generated from the
-code, so that they cannot drift from it.
+"""The docs' generated parts, written into the pages themselves so that a page reads the same
+on the repository host as on the built site, and cannot drift from the code: a test fails when
+a page differs from what ``python3 tools/docs_hooks.py --write`` would write.
 
-- ``<!-- commands -->`` becomes the reference of every command, from the CLI's own parser
-  (the text ``--help`` prints).
-- ``<!-- reference-kinds -->``, ``<!-- optimizer-methods -->``, ``<!-- fmi-versions -->``
-  become the tables of those registries.
-- ``<!-- readme: HEADING -->`` becomes that section of the README (the set-up commands are
-  written once, in the README).
-- ``<!-- benchmark: NAME -->`` becomes the recorded output of a benchmark,
-  ``docs/benchmarks/NAME.txt``, with the command and commit it came from, and a warning when
-  the code it measures changed after that commit (a stale figure shows as stale).
+A generated part sits between ``<!-- generated: KIND[: ARGUMENT] -->`` and
+``<!-- end generated -->``:
+
+- ``commands``: the reference of every command, from the CLI's own parser (``--help``'s text);
+- ``reference-kinds``, ``optimizer-methods``, ``fmi-versions``: the tables of those registries;
+- ``readme: HEADING``: that section of the README (the set-up commands are written once);
+- ``benchmark: NAME``: the recorded output of a benchmark, ``docs/benchmarks/NAME.txt``, and
+  the command that printed it;
+- ``records``: the Performance page's table of every record, the commit it was measured at
+  and the paths it measures.
+
+MkDocs runs this file as a hook (``docs/mkdocs.yml``): the built Performance page also says
+which records the code changed after (their figures are stale until measured again); user
+pages carry no commit or staleness marker.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-_MARK = re.compile(r"<!-- (commands|readme|benchmark|reference-kinds|optimizer-methods|fmi-versions)"
-                   r"(?:: ([^>]+?))? -->")
+PAGES = ROOT / "docs" / "pages"
+RECORDS = ROOT / "docs" / "benchmarks"
+_BLOCK = re.compile(r"(<!-- generated: ([a-z-]+)(?:: ([^>]+?))? -->\n)(.*?)(<!-- end generated -->)", re.S)
+HELP_WIDTH = "100"   # the commands reference is wrapped at this width whatever the terminal
+
+
+def generate(markdown: str, keep: tuple[str, ...] = ()) -> str:
+    """``markdown`` with every generated part written afresh (those of the kinds in ``keep``
+    left as they are)."""
+    def fresh(m):
+        if m.group(2) in keep:
+            return m.group(0)
+        return m.group(1) + _expand(m.group(2), (m.group(3) or "").strip()) + m.group(5)
+
+    return _BLOCK.sub(fresh, markdown)
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
-    return _MARK.sub(lambda m: _expand(m.group(1), (m.group(2) or "").strip()), markdown)
+    markdown = generate(markdown)
+    if Path(page.file.src_path).name == "performance.md":
+        markdown = markdown.replace("<!-- stale records -->", stale_records())
+    return markdown
 
 
 def _expand(kind: str, argument: str) -> str:
@@ -39,14 +63,31 @@ def _expand(kind: str, argument: str) -> str:
         return optimizer_methods()
     if kind == "fmi-versions":
         return fmi_versions()
-    return benchmark(argument)
+    if kind == "benchmark":
+        return benchmark(argument)
+    if kind == "records":
+        return records_table()
+    raise ValueError(f"unknown generated part {kind!r}")
 
 
 def commands_reference() -> str:
     """Every command's usage and options, as its ``--help`` prints them."""
     from furuta_cosim.cli import build_parser
 
-    parser = build_parser()
+    width = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = HELP_WIDTH  # argparse wraps at the terminal's width
+    try:
+        parser = build_parser()
+        text = _commands_text(parser)
+    finally:
+        if width is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = width
+    return text
+
+
+def _commands_text(parser: argparse.ArgumentParser) -> str:
     parts = ["```text", _plain(parser.format_help()), "```", ""]
     for name, sub in _subcommands(parser):
         nested = list(_subcommands(sub))
@@ -105,22 +146,57 @@ def readme_section(heading: str) -> str:
     return match.group(1).strip() + "\n"
 
 
-def benchmark(name: str, folder: Path = ROOT / "docs" / "benchmarks") -> str:
-    """A recorded benchmark output (tools/record.py): its header lines ``command:``,
-    ``commit:``, ``measures:`` (the paths whose change makes the figures stale), then the
-    output as printed."""
-    path = folder / f"{name}.txt"
-    head, _, body = path.read_text().partition("\n\n")
-    fields = dict(line.split(": ", 1) for line in head.splitlines())
-    command, commit = fields["command"], fields["commit"]
-    # ``checked: COMMIT WHAT``: a long benchmark checked later to reproduce (WHAT says how)
-    checked, _, how = fields.get("checked", "").partition(" ")
-    since = checked or commit
-    stale = _changed_since(since, fields.get("measures", "furuta_cosim fmu_src").split())
-    note = (f"!!! warning \"Stale\"\n    The code these figures measure changed in {stale} commit(s) "
-            f"after {since}; run `{command}` again.\n\n" if stale else "")
-    also = f"; checked at `{checked}`: {how}" if checked else ""
-    return (f"{note}Recorded at commit `{commit}` by `{command}`{also}:\n\n```text\n{body.rstrip()}\n```\n")
+def _record(name: str, folder: Path = RECORDS) -> tuple[dict, str]:
+    """A record's header fields (``command``, ``commit``, ``measures``, ``checked``) and body."""
+    head, _, body = (folder / f"{name}.txt").read_text().partition("\n\n")
+    return dict(line.split(": ", 1) for line in head.splitlines()), body.rstrip()
+
+
+def benchmark(name: str, folder: Path = RECORDS) -> str:
+    """A recorded benchmark output (tools/record.py) and the command that printed it; when it
+    was measured and whether the code changed since is the Performance page's business."""
+    fields, body = _record(name, folder)
+    return f"Measured by `{fields['command']}`:\n\n```text\n{body}\n```\n"
+
+
+def records_table(folder: Path = RECORDS) -> str:
+    """Every record: the command, the commit it was measured at and the paths it measures."""
+    rows = ["| record | command | measured at | measures |", "| --- | --- | --- | --- |"]
+    for path in sorted(folder.glob("*.txt")):
+        fields, _ = _record(path.stem, folder)
+        checked = f"; checked at `{fields['checked'].split()[0]}`" if fields.get("checked") else ""
+        rows.append(f"| {path.stem} | `{fields['command']}` | `{fields['commit']}`{checked} | "
+                    f"{fields.get('measures', 'furuta_cosim fmu_src')} |")
+    return "\n".join(rows) + "\n"
+
+
+def stale_records(folder: Path = RECORDS) -> str:
+    """The records whose measured code changed after they were measured (built site only)."""
+    lines = []
+    for path in sorted(folder.glob("*.txt")):
+        fields, _ = _record(path.stem, folder)
+        since = (fields.get("checked", "").split() or [fields["commit"]])[0]
+        stale = _changed_since(since, fields.get("measures", "furuta_cosim fmu_src").split())
+        if stale:
+            lines.append(f"- **{path.stem}**: the code it measures changed in {stale} commit(s) after "
+                         f"`{since}`; run `{fields['command']}` again.")
+    if not lines:
+        return "Every record was measured at the code it measures.\n"
+    return "!!! warning \"Stale records\"\n" + "".join(f"    {line}\n" for line in lines)
+
+
+def write_pages(check: bool = False, keep: tuple[str, ...] = ()) -> list[str]:
+    """Write every page's generated parts; the pages that were (``check``: would be) changed.
+    ``keep``: kinds of parts left as they are."""
+    changed = []
+    for page in sorted(PAGES.glob("*.md")):
+        text = page.read_text()
+        fresh = generate(text, keep)
+        if fresh != text:
+            changed.append(page.name)
+            if not check:
+                page.write_text(fresh)
+    return changed
 
 
 def _changed_since(commit: str, paths: list[str]) -> int:
@@ -131,3 +207,16 @@ def _changed_since(commit: str, paths: list[str]) -> int:
     except (OSError, subprocess.SubprocessError):
         return 0
     return int(out.strip() or 0)
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
+    parser = argparse.ArgumentParser(description="write the docs' generated parts into the pages")
+    mode = parser.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--write", action="store_true", help="write them")
+    mode.add_argument("--check", action="store_true", help="only list the pages out of date (exit 1)")
+    arguments = parser.parse_args()
+    pages = write_pages(check=arguments.check)
+    for name in pages:
+        print(("out of date: " if arguments.check else "written: ") + name)
+    sys.exit(1 if arguments.check and pages else 0)

@@ -1,9 +1,9 @@
 """Run a benchmark and record what it printed for the docs: ``docs/benchmarks/NAME.txt``,
-headed by the command, the commit it ran at and the paths whose change makes it stale. The
-Performance page shows the file as recorded, and a warning when the code it measures changed
-after that commit (tools/docs_hooks.py).
+headed by the command, the commit it ran at and the paths whose change makes it stale; then
+the pages that show it are written again (tools/docs_hooks.py: the figures where a page shows
+them, the commit and, on the built site, a staleness warning on the Performance page).
 
-    python tools/record.py NAME [--measures PATH ...] -- python tools/bench_fmu.py [ARGS]
+    python tools/record.py [--measures PATH ...] -- NAME python tools/bench_fmu.py [ARGS]
 
 The working tree must be clean in the measured paths (a figure of uncommitted code has no
 commit to name). The output goes to the terminal as well; the file is written only when the
@@ -54,6 +54,11 @@ def main() -> int:
         out.write(head + "\n" + done.stdout)
     os.replace(partial, target)
     print(f"recorded in {target.relative_to(ROOT)} at {commit}", file=sys.stderr)
+    sys.path.insert(0, str(ROOT / "tools"))
+    import docs_hooks  # the pages that show the record, and the Performance page's table
+
+    for page in docs_hooks.write_pages():
+        print(f"written: docs/pages/{page}", file=sys.stderr)
     return 0
 
 
