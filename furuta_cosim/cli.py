@@ -326,9 +326,11 @@ def _tune_on_rig(args, spec, out, started) -> int:
             raise ConfigError([f"--evaluator: expected external DIR, got {kind!r}"])
         if args.rig is not None:
             raise ConfigError(["--rig: an external rig is its own: its limits are its own code's"])
+        from furuta_cosim.metrics import peak_metric
+
         metrics = sorted({t.metric for t in spec.objective.all_terms}
                          | {m for m, _ in spec.constraints.no_worse_than}
-                         | {("u.peak_abs" if n == "u" else f"{n}.max_abs") for n, _ in spec.constraints.max_abs})
+                         | {peak_metric(n) for n, _ in spec.constraints.max_abs})
         trials = ExternalTrials(folder, WAIT if args.wait is None else args.wait, metrics)
     else:
         if args.wait is not None:

@@ -1,46 +1,238 @@
 """Metrics of a trace, with python-control's step_info names, and requirement verdicts.
 
-Keys are ``<signal>.<metric>``:
-
-- the tracked output (when the reference ends constant): ``RiseTime``, ``SettlingTime``,
-  ``SettlingMin``, ``SettlingMax``, ``Overshoot``, ``Undershoot``, ``Peak``, ``PeakTime``,
-  ``SteadyStateValue`` of the response since the reference's last change, computed by
-  ``control.step_info`` on the response normalized to a unit step (``Peak``: the extreme in
-  the direction of the change); for a reference of 2 to :data:`MAX_STEPS` steps, the same of
-  each step until the next, as ``<output>.step<k>.<name>``;
-- ``error.IAE``, ``error.ISE``, ``error.ITAE``, ``error.RMS`` of e = r - y (RMS over the
-  scenario's error window when it has one);
-- ``u.peak_abs``, ``u.rms``, ``u.energy`` (the integral of u^2);
-- for every recorded output ``<name>.max_abs``, and for an output that starts away from 0
-  while the reference is not about it, ``<name>.SettlingTime``: the time after which it stays
-  within 2 % of its initial offset around 0 (regulation); for an angle that starts more than
-  pi/2 from 0 (a pendulum hanging), ``<name>.WrappedSettlingTime``: the same of the angle
-  wrapped to (-pi, pi], the time after which it stays within 2 % of its start from upright,
-  whichever way round it swung up.
+Keys are ``<signal>.<metric>``. Every metric is one :class:`Metric` subclass below, registered
+by being defined (:data:`METRICS`): the signals it belongs to (``of``), how it is computed,
+whether it only grows along a run (:class:`Sum`, :class:`Peak`: their running form is what
+early stopping watches, cosim/limits.py), its own regression tolerance, whether simulate's
+table shows it, and the description the docs' table and the error messages are made from.
+Which metrics one run records is :func:`catalogue`; the values of a trace are :func:`compute`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from furuta_cosim.signals import COMMAND, is_controller_state, is_estimate
 
 THRESHOLD = 0.02
-STEP_NAMES = ("RiseTime", "SettlingTime", "SettlingMin", "SettlingMax", "Overshoot",
-              "Undershoot", "Peak", "PeakTime", "SteadyStateValue")
-INPUT_METRICS = ("peak_abs", "rms", "energy")         # of the applied input u
-ERROR_METRICS = ("IAE", "ISE", "ITAE", "RMS")          # of e = r - y
-OUTPUT_METRICS = ("max_abs", "SettlingTime")           # of any other plant output (regulation)
-# of an angle (rad) that starts more than pi/2 from 0: a pendulum swung up from hanging, upright
-# whichever way round it went
-WRAPPED_METRICS = ("WrappedSettlingTime",)
-SIGNAL_METRICS = ("max_abs",)                          # of any other recorded signal
-# every metric name that some signal can have: what a scenario file may name before the plant
-# is known; :func:`catalogue` says which exist for one prepared scenario
-ALL_NAMES = tuple(dict.fromkeys(STEP_NAMES + INPUT_METRICS + ERROR_METRICS + OUTPUT_METRICS + WRAPPED_METRICS))
+# the signals a metric belongs to: the applied input ``u``; the tracking error ``error`` (e =
+# r - y); the tracked output's step response (python-control's step_info, computed together);
+# every recorded signal; the plant outputs besides the tracked one that start away from 0
+# (regulation); the angles among those that start more than pi/2 from 0 (a pendulum hanging)
+GROUPS = ("input", "error", "step", "signal", "regulated", "wrapped")
+
+
+@dataclass(frozen=True)
+class Samples:
+    """What a metric reads: one signal ``x`` at times ``t`` (a run's or a chunk of it), the
+    sample period ``dt`` and, for the error, the scenario's window (a mask, or None)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    dt: float
+    window: np.ndarray | None = None
+
+
+class Metric:
+    """One metric: subclass with ``name``, ``of`` (one of :data:`GROUPS`) and ``description``,
+    and :meth:`value`; registered by being defined.
+
+    ``grows``: it only grows along a run (sums of non-negative terms, maxima): subclass
+    :class:`Sum` or :class:`Peak`, whose running form early stopping uses. ``rtol``/``atol``:
+    the least regression tolerance it needs (a scenario's ``regression`` may widen it).
+    ``shown``: simulate's table shows it. ``cost``: a larger value is worse (the tuning
+    summary flags a tuned controller worse than its baseline on it).
+    """
+
+    name: ClassVar[str] = ""
+    of: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    grows: ClassVar[bool] = False
+    rtol: ClassVar[float] = 0.0
+    atol: ClassVar[float] = 0.0
+    shown: ClassVar[bool] = False
+    cost: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.name:
+            if cls.of not in GROUPS:
+                raise TypeError(f"metric {cls.name}: of = {cls.of!r}, expected one of {GROUPS}")
+            if (cls.of, cls.name) in METRICS:
+                raise TypeError(f"metric {cls.of} {cls.name} is defined twice")
+            METRICS[(cls.of, cls.name)] = cls()
+
+    def value(self, s: Samples) -> float | None:
+        """Its value over the samples (None: it has none for this signal)."""
+        raise NotImplementedError
+
+
+# (group, name) -> the metric, in the order they are defined (tables and docs keep it)
+METRICS: dict[tuple[str, str], Metric] = {}
+
+
+class Sum(Metric):
+    """A sum of non-negative terms times dt: it only grows, and its running value is the
+    same terms over the samples run so far."""
+
+    grows = True
+    cost = True
+
+    def term(self, s: Samples) -> np.ndarray:
+        raise NotImplementedError
+
+    def value(self, s: Samples) -> float:
+        return self.running(0.0, s)
+
+    def running(self, so_far: float, s: Samples) -> float:
+        return so_far + float(np.sum(self.term(s))) * s.dt
+
+
+class Peak(Metric):
+    """The largest magnitude: it only grows. A sample that is not a number is left to the
+    run's own check of its outputs (a failure, not a bound)."""
+
+    grows = True
+    cost = True
+
+    def value(self, s: Samples) -> float:
+        return float(np.max(np.abs(s.x))) if len(s.x) else 0.0
+
+    def running(self, so_far: float, s: Samples) -> float:
+        if not len(s.x):
+            return so_far
+        peak = float(np.max(np.abs(s.x)))
+        return so_far if math.isnan(peak) else max(so_far, peak)
+
+
+class _StepInfo(Metric):
+    """A name of python-control's step_info, computed for all at once (:func:`step_metrics`)."""
+
+    of = "step"
+
+    def value(self, s: Samples) -> float | None:
+        raise TypeError("step metrics are computed together: step_metrics")
+
+
+def _step(name: str, description: str, shown: bool = False, cost: bool = False):
+    return type(name, (_StepInfo,), {"name": name, "description": description, "shown": shown,
+                                     "cost": cost, "__module__": __name__})
+
+
+_step("RiseTime", "time from 10 % to 90 % of the change (s)", shown=True, cost=True)
+_step("SettlingTime", "time after which it stays within 2 % of the change around its final value (s)",
+      shown=True, cost=True)
+_step("SettlingMin", "its least value once risen")
+_step("SettlingMax", "its greatest value once risen")
+_step("Overshoot", "how far past the final value, in % of the change", shown=True, cost=True)
+_step("Undershoot", "how far the wrong way first, in % of the change", cost=True)
+_step("Peak", "its extreme in the direction of the change (a step down peaks at its lowest)", shown=True)
+_step("PeakTime", "when it peaked (s)")
+_step("SteadyStateValue", "its final value")
+
+
+class IAE(Sum):
+    name, of, shown = "IAE", "error", True
+    description = "integral of |e|"
+
+    def term(self, s):
+        return np.abs(s.x)
+
+
+class ISE(Sum):
+    name, of = "ISE", "error"
+    description = "integral of e^2"
+
+    def term(self, s):
+        return s.x ** 2
+
+
+class ITAE(Sum):
+    name, of = "ITAE", "error"
+    description = "integral of t |e|"
+
+    def term(self, s):
+        return np.asarray(s.t) * np.abs(s.x)
+
+
+class ErrorRMS(Metric):
+    name, of, shown, cost = "RMS", "error", True, True
+    description = "root mean square of e (over the scenario's error window when it has one)"
+
+    def value(self, s):
+        x = s.x if s.window is None else s.x[s.window]
+        return float(np.sqrt(np.mean(x ** 2)))
+
+
+class InputPeak(Peak):
+    name, of, shown = "peak_abs", "input", True
+    description = "largest |u| (the voltage applied, after any limit)"
+
+
+class InputRMS(Metric):
+    name, of, shown, cost = "rms", "input", True, True
+    description = "root mean square of u"
+
+    def value(self, s):
+        return float(np.sqrt(np.mean(s.x ** 2)))
+
+
+class InputEnergy(Sum):
+    name, of, shown = "energy", "input", True
+    description = "integral of u^2"
+
+    def term(self, s):
+        return s.x ** 2
+
+
+class MaxAbs(Peak):
+    name, of, shown = "max_abs", "signal", True
+    description = "largest magnitude of a recorded signal (plant outputs, u_command, controller states, ...)"
+
+
+class RegulationSettling(Metric):
+    name, of, shown, cost = "SettlingTime", "regulated", True, True
+    description = ("time after which an output that starts away from 0 stays within 2 % of its "
+                   "initial offset around 0 (s): \"the pendulum is back\"")
+
+    def value(self, s):
+        return regulation_settling(s.t, s.x)
+
+
+class WrappedSettling(Metric):
+    name, of, cost = "WrappedSettlingTime", "wrapped", True
+    description = ("the same of an angle (rad) started more than pi/2 from 0, wrapped to (-pi, pi]: "
+                   "upright whichever way round it swung up (s)")
+
+    def value(self, s):
+        return regulation_settling(s.t, _wrapped(s.x))
+
+
+def metrics_of(group: str, shown: bool = False) -> tuple[str, ...]:
+    """The names of a group's metrics (``shown``: only those simulate's table shows)."""
+    return tuple(m.name for (g, m_name), m in METRICS.items() if g == group and (m.shown or not shown))
+
+
+def entry(key: str) -> Metric | None:
+    """The registered metric of a key ``<signal>.<name>`` (None: no such name)."""
+    signal, _, name = key.rpartition(".")
+    groups = {"u": ("input",), "error": ("error",)}.get(signal, ("step", "signal", "regulated", "wrapped"))
+    return next((METRICS[(g, name)] for g in groups if (g, name) in METRICS), None)
+
+
+def peak_metric(signal: str) -> str:
+    """The metric of a signal's largest magnitude (the input's is ``u.peak_abs``)."""
+    return f"u.{InputPeak.name}" if signal == "u" else f"{signal}.{MaxAbs.name}"
+
+
+STEP_NAMES = metrics_of("step")
+# what a tuning summary compares a tuned controller with its baseline on, besides its own
+# objective and constraints: the tracking error, the voltage's size and its peak
+HEADLINE = (f"error.{ISE.name}", f"u.{InputRMS.name}", f"u.{InputPeak.name}")
 
 
 def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
@@ -50,36 +242,34 @@ def catalogue(tracked: str, outputs: Iterable[str], others: Iterable[str] = (),
     ``outputs`` are the plant outputs (the tracked one among them), ``others`` the further
     recorded signals (disturbance inputs, ``u_command``, estimates); ``steps``: how many steps
     of a piecewise-constant reference get metrics of their own (:func:`step_segments`);
-    ``wrapped``: the angles that start more than pi/2 from 0 (:data:`WRAPPED_METRICS`). Controller states
-    ``xc<k>`` have ``max_abs`` too; they depend on the controller, so :func:`problem` accepts
+    ``wrapped``: the angles that start more than pi/2 from 0. Controller states ``xc<k>``
+    have the ``signal`` metrics too; they depend on the controller, so :func:`problem` accepts
     them by pattern.
     """
-    result = {"u": INPUT_METRICS, "error": ERROR_METRICS}
+    result = {"u": metrics_of("input"), "error": metrics_of("error")}
     wrapped = set(wrapped)
     for name in outputs:
-        result[name] = (STEP_NAMES + ("max_abs",) if settles else ("max_abs",)) if name == tracked \
-            else OUTPUT_METRICS + (WRAPPED_METRICS if name in wrapped else ())
+        result[name] = (metrics_of("step") + metrics_of("signal") if settles else metrics_of("signal")) \
+            if name == tracked else \
+            metrics_of("signal") + metrics_of("regulated") + (metrics_of("wrapped") if name in wrapped else ())
     for name in others:
-        result.setdefault(name, SIGNAL_METRICS)
+        result.setdefault(name, metrics_of("signal"))
     if settles:
-        result.update({f"{tracked}.step{k}": STEP_NAMES for k in range(1, steps + 1)})
+        result.update({f"{tracked}.step{k}": metrics_of("step") for k in range(1, steps + 1)})
     return result
 
 
-# what a table of a run shows first, by signal: the tracked output's step response, the
-# error's integrals, the input's size, and for the watched outputs (Trace.watched: those in the
-# tracked output's unit) their peak and settling
-TABLE = {"tracked": ("RiseTime", "SettlingTime", "Overshoot", "Peak"),
-         "error": ("IAE", "RMS"), "u": INPUT_METRICS, "watched": OUTPUT_METRICS}
-
-
 def table_keys(tracked: str, watched: Iterable[str] = (), steps: int = 0) -> list[str]:
-    """The metric keys of :data:`TABLE` for a run tracking ``tracked`` (a table leaves out the
-    ones a run does not record); with ``steps`` (several steps), each step's."""
+    """The metric keys simulate's table shows (``shown``) for a run tracking ``tracked``: the
+    tracked output's step response, the error's, the input's, and for the watched outputs
+    (Trace.watched: those in the tracked output's unit) theirs (a table leaves out the ones a
+    run does not record); with ``steps`` (several steps), each step's."""
     prefixes = [f"{tracked}.step{k}" for k in range(1, steps + 1)] if steps else [tracked]
-    keys = [f"{prefix}.{m}" for prefix in prefixes for m in TABLE["tracked"]]
-    keys += [f"error.{m}" for m in TABLE["error"]] + [f"u.{m}" for m in TABLE["u"]]
-    return keys + [f"{name}.{m}" for name in watched for m in TABLE["watched"]]
+    keys = [f"{prefix}.{m}" for prefix in prefixes for m in metrics_of("step", shown=True)]
+    keys += [f"error.{m}" for m in metrics_of("error", shown=True)]
+    keys += [f"u.{m}" for m in metrics_of("input", shown=True)]
+    return keys + [f"{name}.{m}" for name in watched
+                   for m in metrics_of("signal", shown=True) + metrics_of("regulated", shown=True)]
 
 
 def checked(check, value, key: str) -> str | None:
@@ -102,22 +292,35 @@ def problem(metric: str, known: Mapping[str, tuple[str, ...]] | None = None) -> 
     if not dot or not signal or not name:
         return f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}"
     if known is None or is_controller_state(signal):
-        names = {"u": INPUT_METRICS, "error": ERROR_METRICS}.get(signal, ALL_NAMES)
+        names = {"u": metrics_of("input"), "error": metrics_of("error")}.get(
+            signal, tuple(dict.fromkeys(name for _, name in METRICS)))  # any signal's, before the plant is known
         if is_controller_state(signal):
-            names = SIGNAL_METRICS
+            names = metrics_of("signal")
         if name not in names:
-            return f"{signal} has no metric {name!r} (expected one of: {', '.join(names)})"
+            return f"{signal} has no metric {name!r} (expected one of: {', '.join(names)}){_nearest(signal, name, names)}"
         return None
     if signal not in known:
         return f"no signal {signal!r} is recorded (signals: {', '.join(known)})"
     if name not in known[signal]:
-        return f"{signal} has no metric {name!r} (its metrics: {', '.join(known[signal])})"
+        return (f"{signal} has no metric {name!r} (its metrics: {', '.join(known[signal])})"
+                f"{_nearest(signal, name, known[signal])}")
     return None
 
 
+def _nearest(signal: str, name: str, names: Sequence[str]) -> str:
+    """"; did you mean ...: what it is" for the registered name closest to ``name``."""
+    import difflib
+
+    close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
+    found = entry(f"{signal}.{close[0]}") if close else None
+    return f"; did you mean {close[0]}: {found.description}?" if found else ""
+
+
 def _integrals(t: np.ndarray, e: np.ndarray, dt: float) -> dict:
-    return {"IAE": float(np.sum(np.abs(e)) * dt), "ISE": float(np.sum(e ** 2) * dt),
-            "ITAE": float(np.sum(t * np.abs(e)) * dt)}
+    """The error's sums (IAE, ISE, ITAE, ...: every error metric that is a :class:`Sum`)."""
+    samples = Samples(t, e, dt)
+    return {name: m.value(samples) for (group, name), m in METRICS.items()
+            if group == "error" and isinstance(m, Sum)}
 
 
 def standing_still(trace, error_window=None) -> dict[str, float]:
@@ -204,7 +407,6 @@ def _compute(trace, settles: bool, error_window) -> dict[str, float]:
     t, dt = trace.t, (trace.t[1] - trace.t[0]) if len(trace.t) > 1 else 1.0
     y, r = trace.signals[trace.tracked], trace.r
     metrics: dict[str, float] = {}
-    metrics[f"{trace.tracked}.max_abs"] = float(np.max(np.abs(y))) if len(y) else 0.0
     if settles:
         changes = np.nonzero(np.abs(np.diff(r)) > 0)[0]
         begin = changes[-1] + 1 if len(changes) else 0
@@ -217,24 +419,23 @@ def _compute(trace, settles: bool, error_window) -> dict[str, float]:
             step = step_metrics(t[first:end], y[first:end], float(y[first]), float(r[first]))
             for name, value in (step or {}).items():
                 metrics[f"{trace.tracked}.step{k}.{name}"] = value
-    e = r - y
-    for name, value in _integrals(t, e, dt).items():
-        metrics[f"error.{name}"] = value
-    window = slice(None)
+    window = None
     if error_window:
         window = (t >= error_window[0] - 1e-12) & (t < error_window[1] - 1e-12)
-    metrics["error.RMS"] = float(np.sqrt(np.mean(e[window] ** 2)))
-    u = trace.u
-    metrics.update({"u.peak_abs": float(np.max(np.abs(u))), "u.rms": float(np.sqrt(np.mean(u ** 2))),
-                    "u.energy": float(np.sum(u ** 2) * dt)})
-    for name, values in trace.signals.items():
-        metrics[f"{name}.max_abs"] = float(np.max(np.abs(values)))
-        if name != trace.tracked and name in _regulated(trace):
-            settling = regulation_settling(t, values)
-            if settling is not None:
-                metrics[f"{name}.SettlingTime"] = settling
-            if trace.units.get(name) == "rad" and abs(_wrapped(values[:1])[0]) > math.pi / 2:
-                metrics[f"{name}.WrappedSettlingTime"] = regulation_settling(t, _wrapped(values))
+    regulated = _regulated(trace)
+    for signal, x, groups in [("error", r - y, ("error",)), ("u", trace.u, ("input",))] + [
+            (name, values, ("signal",) + (("regulated", "wrapped") if name != trace.tracked and name in regulated
+                                          else ())) for name, values in trace.signals.items()]:
+        samples = Samples(t, x, dt, window if signal == "error" else None)
+        for (group, name), metric in METRICS.items():
+            if group not in groups:
+                continue
+            if group == "wrapped" and not (trace.units.get(signal) == "rad"
+                                           and abs(_wrapped(x[:1])[0]) > math.pi / 2):
+                continue
+            value = metric.value(samples)
+            if value is not None:
+                metrics[f"{signal}.{name}"] = value
     if trace.failure:
         # a run that stopped early never settled, whatever its last samples show
         metrics.update({k: math.inf for k in metrics if k.endswith(("SettlingTime", "RiseTime"))})

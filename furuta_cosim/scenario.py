@@ -20,7 +20,7 @@ from furuta_cosim.config import Checker, Frozen, load_yaml, resolve_file
 from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
-from furuta_cosim.metrics import checked
+from furuta_cosim.metrics import checked, entry
 from furuta_cosim.references import KINDS, PLAIN
 
 METRIC_BOUNDS = ("max", "min")
@@ -133,8 +133,11 @@ class Regression:
     divergence_time: float | None = None
 
     def tolerance(self, metric: str) -> tuple[float, float]:
-        own = self.metrics.get(metric, {})
-        return own.get("rtol", self.rtol), own.get("atol", self.atol)
+        """(rtol, atol) of ``metric``: the scenario's own for it, else the larger of the
+        scenario's default and the least the metric itself needs (its registry entry)."""
+        own, registered = self.metrics.get(metric, {}), entry(metric)
+        least = (registered.rtol, registered.atol) if registered else (0.0, 0.0)
+        return own.get("rtol", max(self.rtol, least[0])), own.get("atol", max(self.atol, least[1]))
 
 
 @dataclass(frozen=True)

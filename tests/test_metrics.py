@@ -1,6 +1,9 @@
 """Metric values computed by hand on traces small enough to check on paper."""
 
 import math
+import sys
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -68,3 +71,63 @@ def test_each_step_of_a_staircase_has_its_own_metrics():
 def test_a_reference_of_many_changes_has_no_step_metrics_of_each():
     assert step_segments(np.sin(np.linspace(0, 10, 500))) == []
     assert step_segments(np.array([0.0, 1.0, 1.0])) == []            # one step: the unprefixed ones
+
+
+def test_a_new_metric_is_one_registry_entry(monkeypatch):
+    """The issue's change task: ``u.peak_rate`` as one class. It is in the catalogue, computed,
+    checked in requirement names, left out of simulate's table (not ``shown``), documented
+    from its description, compared within its own tolerance, and not watched (it does not
+    ``grow``)."""
+    import numpy as np
+
+    from furuta_cosim import metrics
+    from furuta_cosim.cosim.limits import monotone
+    from furuta_cosim.metrics import Metric, table_keys
+    from furuta_cosim.scenario import Regression
+
+    monkeypatch.setattr(metrics, "METRICS", dict(metrics.METRICS))
+    table = table_keys("theta0", ["theta1"])
+
+    class PeakRate(Metric):
+        name, of, rtol = "peak_rate", "input", 1e-4
+        description = "largest |du/dt| between samples (V/s)"
+
+        def value(self, s):
+            return float(np.max(np.abs(np.diff(s.x)))) / s.dt if len(s.x) > 1 else 0.0
+
+    assert "peak_rate" in catalogue("theta0", ["theta0", "theta1"])["u"]
+    assert problem("u.peak_rate") is None and problem("u.peak_rat").endswith(
+        "did you mean peak_rate: largest |du/dt| between samples (V/s)?")
+    assert table_keys("theta0", ["theta1"]) == table
+    assert Regression().tolerance("u.peak_rate") == (1e-4, 1e-9)
+    assert Regression(rtol=1e-3).tolerance("u.peak_rate")[0] == 1e-3   # a scenario may widen it
+    assert not monotone("u.peak_rate", ["theta0"])
+    trace = SimpleNamespace(t=np.arange(5) * 0.5, r=np.zeros(5), u=np.array([0.0, 1.0, -1.0, 0.0, 0.0]),
+                            signals={"y": np.zeros(5)}, tracked="y", units={}, failure=None)
+    assert compute(trace, settles=False)["u.peak_rate"] == pytest.approx(4.0)
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+    try:
+        import docs_hooks
+    finally:
+        sys.path.pop(0)
+    assert "| `peak_rate` | `u` | largest \\|du/dt\\| between samples (V/s) | - | - | rtol 0.0001 |" in \
+        docs_hooks.metrics_table()
+
+
+def test_every_metric_that_grows_runs_as_it_ends():
+    """One implementation: a growing metric's running value over chunks is its value over the
+    whole run, for every registered one."""
+    import numpy as np
+
+    from furuta_cosim.metrics import METRICS, Samples
+
+    rng = np.random.default_rng(3)
+    t = np.arange(200) * 0.01
+    x = rng.normal(size=200)
+    grown = [m for m in METRICS.values() if m.grows]
+    assert len(grown) >= 6
+    for m in grown:
+        running = 0.0
+        for first in range(0, 200, 37):
+            running = m.running(running, Samples(t[first:first + 37], x[first:first + 37], 0.01))
+        assert running == pytest.approx(m.value(Samples(t, x, 0.01)), rel=1e-12), m.name

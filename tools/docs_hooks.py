@@ -6,10 +6,12 @@ A generated part sits between ``<!-- generated: KIND[: ARGUMENT] -->`` and
 ``<!-- end generated -->``:
 
 - ``commands``: the reference of every command, from the CLI's own parser (``--help``'s text);
-- ``reference-kinds``, ``optimizer-methods``, ``fmi-versions``: the tables of those registries;
+- ``reference-kinds``, ``optimizer-methods``, ``fmi-versions``, ``metrics``: the tables of those
+  registries;
 - ``readme: HEADING``: that section of the README (the set-up commands are written once);
 - ``benchmark: NAME``: the recorded output of a benchmark, ``docs/benchmarks/NAME.txt``, and
   the command that printed it;
+- ``modules``: the development page's map, every module and the first sentence of its docstring;
 - ``records``: the Performance page's table of every record, the commit it was measured at
   and the paths it measures.
 
@@ -67,6 +69,10 @@ def _expand(kind: str, argument: str) -> str:
         return benchmark(argument)
     if kind == "records":
         return records_table()
+    if kind == "metrics":
+        return metrics_table()
+    if kind == "modules":
+        return modules_table()
     raise ValueError(f"unknown generated part {kind!r}")
 
 
@@ -114,6 +120,41 @@ def reference_kinds() -> str:
     for name, kind in KINDS.items():
         rows.append(f"| `{name}` | {', '.join(kind.required)} | {', '.join(kind.optional) or '-'} | "
                     f"{'yes' if kind.settles else 'no'} |")
+    return "\n".join(rows) + "\n"
+
+
+def modules_table(package: Path = ROOT / "furuta_cosim") -> str:
+    """Every module of the package and what it holds: the first sentence of its docstring."""
+    import ast
+
+    rows = ["| module | what it holds |", "| --- | --- |"]
+    for path in sorted(package.rglob("*.py"), key=lambda p: (len(p.relative_to(package).parts), p)):
+        relative = path.relative_to(package)
+        if path.name == "__init__.py" or relative.parts[0] == "_c" or "_c" in relative.parts:
+            continue
+        text = ast.get_docstring(ast.parse(path.read_text())) or ""
+        paragraph = " ".join(text.split("\n\n")[0].split())
+        first = re.split(r"(?<=[a-z0-9)`])\. (?=[A-Z`(])", paragraph, maxsplit=1)[0].rstrip(".:")
+        if not first:
+            raise ValueError(f"{relative}: a module without a docstring saying what it holds")
+        rows.append(f"| `{relative.as_posix()}` | {first.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"
+
+
+def metrics_table() -> str:
+    """A table of the registered metrics (furuta_cosim/metrics.py)."""
+    from furuta_cosim.metrics import METRICS
+
+    signals = {"input": "`u`", "error": "`error`", "step": "the tracked output (and `<y>.step<k>`)",
+               "signal": "every recorded signal", "regulated": "an output that starts away from 0",
+               "wrapped": "an angle that starts hanging"}
+    rows = ["| metric | of | what | grows | in the table | regression tolerance |",
+            "| --- | --- | --- | --- | --- | --- |"]
+    for (group, name), m in METRICS.items():
+        tolerance = ", ".join(f"{k} {v:g}" for k, v in (("rtol", m.rtol), ("atol", m.atol)) if v) or "the scenario's"
+        rows.append(f"| `{name}` | {signals[group]} | {m.description.replace('|', chr(92) + '|')} | "
+                    f"{'yes' if m.grows else '-'} | "
+                    f"{'yes' if m.shown else '-'} | {tolerance} |")
     return "\n".join(rows) + "\n"
 
 

@@ -150,9 +150,9 @@ def evaluate(prepared: Prepared, session, controller, *,
     progress : callable, optional
         ``progress(k, steps)``, called every :data:`CHUNK` samples.
     limits : dict, optional
-        ``{metric: bound}`` of metrics that only grow along a run (``error.ISE``, ``error.IAE``,
-        ``error.ITAE``, ``u.energy``, ``u.peak_abs``, ``<output>.max_abs``): the run stops as
-        soon as one is past its bound.
+        ``{metric: bound}`` of metrics that only grow along a run (registered with ``grows``
+        in furuta_cosim/metrics.py: ``error.ISE``, ``u.peak_abs``, ``<output>.max_abs``, ...):
+        the run stops as soon as one is past its bound.
 
     Returns
     -------

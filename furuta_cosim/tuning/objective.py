@@ -14,7 +14,7 @@ lower bounds of the full runs'. The runs go in the order they are given (``order
 broken most often so far first), and a candidate that is feasible scores the same in any order.
 Baselines (:meth:`Evaluator.score`) always run to the end.
 
-Each outcome carries what a constrained optimizer models separately (tuning/optimizers.py):
+Each outcome carries what a constrained optimizer models separately (tuning/bayesopt.py):
 ``value``, the objective computed whether or not the candidate is feasible (None where it
 cannot be: an unstable loop, a run that diverged), and ``margin``, the largest of the
 constraints' normalized slacks (each <= 0 when met: a peak over its bound is value / bound - 1,
@@ -38,6 +38,7 @@ import numpy as np
 from furuta_cosim.design.controller import GeneralizedController, augmented, discretize_controller
 from furuta_cosim.documents import json_safe
 from furuta_cosim.errors import ConfigError, DesignError, FmuError
+from furuta_cosim.metrics import peak_metric
 from furuta_cosim.tuning.spec import TuningSpec
 from furuta_cosim.tuning.space import Space
 
@@ -87,11 +88,6 @@ STABILITY_SCALE = 0.01
 def _linear(controller):
     """The generalized controller of a candidate: itself, or a swing-up file's balance controller."""
     return getattr(controller, "controller", controller)
-
-
-def _peak(signal: str) -> str:
-    """The metric of a signal's largest magnitude (the input's is ``u.peak_abs``)."""
-    return "u.peak_abs" if signal == "u" else f"{signal}.max_abs"
 
 
 def spectral_abscissa(Abar: np.ndarray, period: float) -> np.ndarray:
@@ -286,7 +282,7 @@ class Evaluator:
         spec, found = self.spec, []
         names = iter(self.constraint_names(label))
         for signal, bound in spec.constraints.max_abs:
-            value = values.get(_peak(signal), math.inf)
+            value = values.get(peak_metric(signal), math.inf)
             constraints[f"{label}.{signal}.max_abs"] = value
             found.append(value / bound - 1.0)
         for metric, factor in spec.constraints.no_worse_than:
@@ -316,8 +312,8 @@ class Evaluator:
             return {}
         found = {}
         for signal, bound in spec.constraints.max_abs:
-            if monotone(_peak(signal), prepared.outputs):
-                found[_peak(signal)] = bound * (1.0 + past)
+            if monotone(peak_metric(signal), prepared.outputs):
+                found[peak_metric(signal)] = bound * (1.0 + past)
         for metric, factor in spec.constraints.no_worse_than:
             reference = self.baseline_metrics()[label].get(metric)
             if monotone(metric, prepared.outputs) and isinstance(reference, float) \
@@ -503,7 +499,7 @@ class Evaluator:
                     # every metric the spec names must be one this run records: a term on an
                     # unrecorded metric would make every candidate, and the baseline, infeasible
                     for signal, _ in spec.constraints.max_abs:
-                        if problem(_peak(signal), prepared.metrics):
+                        if problem(peak_metric(signal), prepared.metrics):
                             raise ConfigError([f"{spec.source}: constraints.max_abs.{signal}: "
                                                f"scenario {scenario.name} records no {signal} "
                                                f"(signals: {', '.join(prepared.metrics)})"])

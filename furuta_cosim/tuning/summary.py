@@ -7,6 +7,7 @@ from pathlib import Path
 
 from furuta_cosim.documents import dumps, json_safe
 from furuta_cosim.files import write_text
+from furuta_cosim.metrics import HEADLINE, peak_metric
 from furuta_cosim.report.figures import plot_convergence
 from furuta_cosim.tuning.methods import front_search
 from furuta_cosim.tuning.spec import TuningSpec
@@ -116,7 +117,7 @@ def flags(spec, evaluator, best: dict, baselines: dict) -> list[str]:
         worse = []
         for label, values in best["metrics"].items():
             theirs = baselines[first]["metrics"].get(label, {})
-            for key in ("u.peak_abs", "u.rms", "error.ISE", "theta1.max_abs",
+            for key in (*HEADLINE, *(peak_metric(n) for n, _ in spec.constraints.max_abs),
                         *(t.metric for t in spec.objective.all_terms)):
                 ours, other = values.get(key), theirs.get(key)
                 if ours is not None and other and ours > other * (1 + WORSE) and f"{label} {key}" not in worse:
@@ -217,8 +218,8 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         lines += ["", "Metric by metric, on every scenario and plant variant:", ""]
         keys = list(dict.fromkeys([t.metric for t in spec.objective.all_terms]
                                   + [m for m, _ in spec.constraints.no_worse_than]
-                                  + ["error.ISE", "u.rms", "u.peak_abs"]
-                                  + [f"{name}.max_abs" for name, _ in spec.constraints.max_abs]))
+                                  + list(HEADLINE)
+                                  + [peak_metric(name) for name, _ in spec.constraints.max_abs]))
         names = [n for n, b in document["baselines"].items() if b.get("metrics")]
         lines.append("| run | metric | tuned | " + " | ".join(names) + " | tuned / " +
                      (names[0] if names else "-") + " |")
