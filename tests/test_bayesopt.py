@@ -9,9 +9,9 @@ import statistics
 import numpy as np
 import pytest
 
-from furuta_cosim.tuning import optimizers, run
+from furuta_cosim.tuning import bayesopt, run
 from furuta_cosim.tuning.executors import Serial
-from furuta_cosim.tuning.optimizers import (ConstrainedBO, RandomSearch, batches, latin_hypercube,
+from furuta_cosim.tuning.bayesopt import (ConstrainedBO, RandomSearch, batches, latin_hypercube,
                                             _region, _weights)
 from furuta_cosim.tuning.spec import load_spec
 
@@ -79,7 +79,7 @@ def test_a_proposal_depends_only_on_the_history_before_its_batch():
     assert points[:2] == [r["x"] for r in records[14:16]]
     # the hyperparameters of the batch before are where the next refit starts: recorded
     assert records[14]["surrogate"]["feasibility"] and len(records[14]["surrogate"]["feasibility"]) == 6
-    assert len(records[14]["surrogate"]["region"]) == optimizers.LANES == 2  # each region's side
+    assert len(records[14]["surrogate"]["region"]) == bayesopt.LANES == 2  # each region's side
 
 
 def test_the_trust_region_doubles_on_success_and_halves_on_failure():
@@ -88,11 +88,11 @@ def test_the_trust_region_doubles_on_success_and_halves_on_failure():
 
     design = [record(0, 10.0)]
     improving = design + [record(k, 10.0 - k) for k in range(1, 4)]
-    assert _region(improving, 1, 1, 4)[0] == pytest.approx(2 * optimizers.REGION_START)
+    assert _region(improving, 1, 1, 4)[0] == pytest.approx(2 * bayesopt.REGION_START)
     stalling = design + [record(k, 10.0) for k in range(1, 5)]  # patience max(4, d) / batch = 4
-    assert _region(stalling, 1, 1, 4)[0] == pytest.approx(optimizers.REGION_START / 2)
+    assert _region(stalling, 1, 1, 4)[0] == pytest.approx(bayesopt.REGION_START / 2)
     length, incumbent = _region(stalling[:3], 1, 1, 4)
-    assert length == optimizers.REGION_START and incumbent["index"] == 0
+    assert length == bayesopt.REGION_START and incumbent["index"] == 0
 
 
 def test_the_second_region_follows_its_own_points_from_the_warm_start():
@@ -106,9 +106,9 @@ def test_the_second_region_follows_its_own_points_from_the_warm_start():
     for k in range(3):  # region 0's points improve, region 1's do not
         records += [record(2 + 2 * k, 9.0 - k, 0.8), record(3 + 2 * k, 11.0, 0.2)]
     length, incumbent = _region(records, 2, 2, 4)
-    assert incumbent["objective"] == 7.0 and length == pytest.approx(2 * optimizers.REGION_START)
+    assert incumbent["objective"] == 7.0 and length == pytest.approx(2 * bayesopt.REGION_START)
     length, own = _region(records, 2, 2, 4, 1, 2)  # patience max(4, d) / batch = 2 failures
-    assert own["index"] == 0 and length == pytest.approx(optimizers.REGION_START / 2)
+    assert own["index"] == 0 and length == pytest.approx(bayesopt.REGION_START / 2)
     records += [record(8, 12.0, 0.8), record(9, 9.0, 0.15)]  # region 1 improves: its new center
     assert _region(records, 2, 2, 4, 1, 2)[1]["index"] == 9
 
@@ -118,12 +118,12 @@ def test_one_long_length_scale_stretches_the_first_region_but_not_the_second():
     the objective hardly depends on; the second region's sides are at most its length, so it
     stays around the basin it follows."""
     scales = [8.0, 0.5, 0.5, 0.5]
-    first, second = _weights(scales), _weights(scales, optimizers.OWN_WIDEST)
+    first, second = _weights(scales), _weights(scales, bayesopt.OWN_WIDEST)
     assert np.prod(first) == pytest.approx(1.0) and first[0] == pytest.approx(8.0)
-    assert second == pytest.approx([optimizers.OWN_WIDEST, 0.5, 0.5, 0.5], rel=1e-12)
+    assert second == pytest.approx([bayesopt.OWN_WIDEST, 0.5, 0.5, 0.5], rel=1e-12)
     bo = ConstrainedBO(BOUNDS, 0, xi=0.01, n_initial_points=4, batch=2)
     center, length = np.array([0.05, 0.5, 0.5, 0.5]), 0.4
-    for weights, reach in ((first, 1.0), (second, 0.05 + 0.5 * length * optimizers.OWN_WIDEST)):
+    for weights, reach in ((first, 1.0), (second, 0.05 + 0.5 * length * bayesopt.OWN_WIDEST)):
         C = bo._candidates(center, length, weights, np.random.default_rng(1), 4096)
         assert C[:, 0].max() == pytest.approx(reach, abs=0.01) and C[:, 0].max() <= reach
         assert np.all(np.abs(C[:, 1:] - 0.5) <= 0.5 * length * 0.5 + 1e-12)

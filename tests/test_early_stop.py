@@ -13,7 +13,7 @@ import pytest
 from furuta_cosim.controllers import load_controller
 from furuta_cosim.tuning.history import failing_first
 from furuta_cosim.tuning.objective import Evaluator
-from furuta_cosim.tuning.optimizers import ConstrainedBO
+from furuta_cosim.tuning.bayesopt import ConstrainedBO
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 

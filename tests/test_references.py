@@ -12,7 +12,7 @@ from furuta_cosim.scenario import load_scenario
 T = np.array([0.0, 0.5, 1.0, 1.5, 2.0])
 
 
-@pytest.mark.parametrize("name, params, expected", [
+EXAMPLES = [
     ("constant", {"value": 3.0}, [3, 3, 3, 3, 3]),
     ("step", {"time": 1.0, "amplitude": 2.0, "initial": -1.0}, [-1, -1, 2, 2, 2]),
     ("sine", {"amplitude": 1.0, "period": 2.0, "offset": 1.0}, [1, 2, 1, 0, 1]),
@@ -20,13 +20,22 @@ T = np.array([0.0, 0.5, 1.0, 1.5, 2.0])
     ("ramp", {"slope": 2.0, "start": 1.0, "initial": 1.0}, [1, 1, 1, 2, 3]),
     ("table", {"points": ((0.0, 0.0), (1.0, 4.0))}, [0, 0, 4, 4, 4]),
     ("table", {"points": ((0.0, 0.0), (1.0, 4.0)), "interpolation": "linear"}, [0, 2, 4, 4, 4]),
-])
+]
+
+
+@pytest.mark.parametrize("name, params, expected", EXAMPLES)
 def test_each_kind_evaluates_by_hand(name, params, expected):
     assert np.allclose(KINDS[name].value(params, T), expected, atol=1e-12)
 
 
-def test_which_kinds_settle():
-    assert {n for n, k in KINDS.items() if k.settles} == {"constant", "step", "table"}
+def test_every_kind_has_an_example_and_settles_exactly_when_it_ends_constant():
+    """``settles`` (step metrics are computed) is what a kind does, read from the registry:
+    each registered kind's example is constant from some time on exactly when it settles."""
+    assert {name for name, _, _ in EXAMPLES} == set(KINDS)
+    late = np.array([100.0, 100.25, 100.5, 101.0, 137.3])
+    for name, params, _ in EXAMPLES:
+        values = KINDS[name].value(params, late)
+        assert KINDS[name].settles == bool(np.ptp(values) == 0.0), name
 
 
 def _scenario(tmp_path, signal: str):
@@ -74,4 +83,4 @@ def test_the_every_key_scenario_of_the_docs_shows_every_kind():
     text = page("scenarios.md")
     example = re.search(r"```yaml\n(.*?)```", text[text.index("Every key of a scenario file"):], re.S).group(1)
     assert set(re.findall(r"\{type: (\w+),", example)) >= set(KINDS)
-    assert "<!-- reference-kinds -->" in text
+    assert "<!-- generated: reference-kinds -->" in text  # its table, written from the registry

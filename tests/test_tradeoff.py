@@ -11,7 +11,7 @@ import yaml
 
 from furuta_cosim.tuning import pareto
 from furuta_cosim.tuning.mobo import HypervolumeBO
-from furuta_cosim.tuning.optimizers import RandomSearch, latin_hypercube
+from furuta_cosim.tuning.bayesopt import RandomSearch, latin_hypercube
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 

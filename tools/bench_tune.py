@@ -55,7 +55,7 @@ from pathlib import Path
 
 from blas import check_kernel  # tools/blas.py: run as a script, tools/ is on the path
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.tuning import optimizers
+from furuta_cosim.tuning import bayesopt
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
@@ -215,7 +215,7 @@ def before(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
 
 
 def _before_make():
-    """``make`` of revision BEFORE's tuning/optimizers.py (with its tuning/gp.py), loaded from
+    """``make`` of revision BEFORE's tuning/bayesopt.py (with its tuning/gp.py), loaded from
     this checkout's git history as modules of their own."""
     import types
 

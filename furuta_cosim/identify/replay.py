@@ -1,4 +1,4 @@
-"""Replay: the logged inputs of an experiment run open loop on a plant, outputs compared.
+"""Replay: an experiment's logged inputs (and its loop, when it names one) run on a plant, outputs compared.
 
 A :class:`Target` is the plant to replay on: this project's FMU of a plant file, or a plant
 FMU from another tool with a mapping file (its names and units as ``regress --mapping`` reads

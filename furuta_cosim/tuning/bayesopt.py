@@ -1,4 +1,5 @@
-"""Where a tuning's candidates come from.
+"""Bayesian optimization's internals (the `bo` method of tuning/methods.py, the registry): where a
+tuning's candidates come from.
 
 ``bo`` is constrained Bayesian optimization after Gardner, Kusner, Xu, Weinberger and
 Cunningham, "Bayesian Optimization with Inequality Constraints" (ICML 2014), the method

@@ -1,4 +1,4 @@
-"""The Gaussian processes of ``bo`` (tuning/optimizers.py, tuning/mobo.py): scikit-learn's
+"""The Gaussian processes of ``bo`` (tuning/bayesopt.py, tuning/mobo.py): scikit-learn's
 GaussianProcessRegressor with a Matern 5/2 kernel, a length scale per parameter, on the unit
 cube, its observations normalized (``normalize_y``).
 

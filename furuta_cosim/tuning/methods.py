@@ -120,7 +120,7 @@ def method_for(name: str) -> Method:
 
 
 class Bayes(Method):
-    """Constrained Bayesian optimization (tuning/optimizers.py): GP of the objective and of
+    """Constrained Bayesian optimization (tuning/bayesopt.py): GP of the objective and of
     feasibility, EI times the probability of feasibility in trust regions; for a tradeoff
     objective expected hypervolume improvement (two criteria) or ParEGO scalarizations."""
 
@@ -131,7 +131,7 @@ class Bayes(Method):
         from furuta_cosim.tuning import pareto
         from furuta_cosim.tuning.history import replayed
         from furuta_cosim.tuning.mobo import HypervolumeBO
-        from furuta_cosim.tuning.optimizers import ConstrainedBO, batches
+        from furuta_cosim.tuning.bayesopt import ConstrainedBO, batches
 
         spec, settings, records = run.spec, run.spec.optimizer, run.records
         if len(records) >= run.n_calls:
@@ -185,7 +185,7 @@ class Random(Method):
     description = "random search"
 
     def search(self, run: Run) -> None:
-        from furuta_cosim.tuning.optimizers import RandomSearch
+        from furuta_cosim.tuning.bayesopt import RandomSearch
 
         sampler = RandomSearch(run.evaluator.space.bounds, run.seed)
         while len(run.records) < run.n_calls:
@@ -287,7 +287,7 @@ def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[floa
     false) and ``optimizer.initial`` controllers the space can represent (each said in one
     line, or why not), then a Latin hypercube up to ``optimizer.n_initial_points``."""
     from furuta_cosim.controllers import load_controller
-    from furuta_cosim.tuning.optimizers import latin_hypercube
+    from furuta_cosim.tuning.bayesopt import latin_hypercube
 
     design, seen = [], set()
     baselines = spec.baselines if spec.optimizer.warm_start else ()

@@ -7,7 +7,7 @@ the area the feasible front dominates. It is estimated here by Monte Carlo over 
 with one set of normal draws per batch shared by every candidate (common random numbers, as
 BoTorch's qEHVI: Daulton, Balandat and Bakshy, NeurIPS 2020), the area added by each draw
 exactly (tuning/pareto.py), and multiplied by the probability of feasibility as in the
-single-criterion BO (tuning/optimizers.py), whose Gaussian processes it reuses:
+single-criterion BO (tuning/bayesopt.py), whose Gaussian processes it reuses:
 
 - one GP per criterion, on every evaluated point where the criterion could be computed, its
   values capped at twice the distance from the best to the reference point (a diverging
@@ -28,7 +28,7 @@ import numpy as np
 
 from furuta_cosim.tuning import pareto
 from furuta_cosim.tuning.gp import Surrogate
-from furuta_cosim.tuning.optimizers import CANDIDATES, ConstrainedBO, Proposal, _theta
+from furuta_cosim.tuning.bayesopt import CANDIDATES, ConstrainedBO, Proposal, _theta
 
 # posterior draws per candidate in the Monte Carlo estimate
 DRAWS = 64

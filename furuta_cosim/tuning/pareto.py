@@ -6,7 +6,7 @@ The search is ParEGO (Knowles, "ParEGO: a hybrid algorithm with on-line landscap
 for expensive multiobjective optimization problems", IEEE Trans. Evol. Comput. 10(1), 2006):
 each batch draws a weight vector on the simplex and minimizes the augmented Chebyshev
 scalarization of the criteria, each normalized to [0, 1] over the points seen so far, with the
-constrained single-objective BO of tuning/optimizers.py. Every weight vector is a function of
+constrained single-objective BO of tuning/bayesopt.py. Every weight vector is a function of
 the seed and the batch number, so a history still depends only on the spec, the seed and the
 batch size.
 """

@@ -781,7 +781,7 @@ _OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1, maximum=MAX_CALLS
 
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
-    from furuta_cosim.tuning.optimizers import FRONTS, REGIONS
+    from furuta_cosim.tuning.bayesopt import FRONTS, REGIONS
 
     defaults = OptimizerSettings()
     section = check.mapping(value, "optimizer", optional=("method", "region", "front", "initial",
