@@ -74,7 +74,7 @@ def test_a_reference_of_many_changes_has_no_step_metrics_of_each():
 
 
 def test_a_new_metric_is_one_registry_entry(monkeypatch):
-    """The issue's change task: ``u.peak_rate`` as one class. It is in the catalogue, computed,
+    """A change task: the input's largest step between samples as one class. It is in the catalogue, computed,
     checked in requirement names, left out of simulate's table (not ``shown``), documented
     from its description, compared within its own tolerance, and not watched (it does not
     ``grow``)."""
@@ -88,29 +88,29 @@ def test_a_new_metric_is_one_registry_entry(monkeypatch):
     monkeypatch.setattr(metrics, "METRICS", dict(metrics.METRICS))
     table = table_keys("theta0", ["theta1"])
 
-    class PeakRate(Metric):
-        name, of, rtol = "peak_rate", "input", 1e-4
-        description = "largest |du/dt| between samples (V/s)"
+    class LargestStep(Metric):
+        name, of, rtol = "largest_step", "input", 1e-4
+        description = "largest |u[k+1] - u[k]| (V)"
 
         def value(self, s):
-            return float(np.max(np.abs(np.diff(s.x)))) / s.dt if len(s.x) > 1 else 0.0
+            return float(np.max(np.abs(np.diff(s.x)))) if len(s.x) > 1 else 0.0
 
-    assert "peak_rate" in catalogue("theta0", ["theta0", "theta1"])["u"]
-    assert problem("u.peak_rate") is None and problem("u.peak_rat").endswith(
-        "did you mean peak_rate: largest |du/dt| between samples (V/s)?")
+    assert "largest_step" in catalogue("theta0", ["theta0", "theta1"])["u"]
+    assert problem("u.largest_step") is None and problem("u.largest_stp").endswith(
+        "did you mean largest_step: largest |u[k+1] - u[k]| (V)?")
     assert table_keys("theta0", ["theta1"]) == table
-    assert Regression().tolerance("u.peak_rate") == (1e-4, 1e-9)
-    assert Regression(rtol=1e-3).tolerance("u.peak_rate")[0] == 1e-3   # a scenario may widen it
-    assert not monotone("u.peak_rate", ["theta0"])
+    assert Regression().tolerance("u.largest_step") == (1e-4, 1e-9)
+    assert Regression(rtol=1e-3).tolerance("u.largest_step")[0] == 1e-3   # a scenario may widen it
+    assert not monotone("u.largest_step", ["theta0"])
     trace = SimpleNamespace(t=np.arange(5) * 0.5, r=np.zeros(5), u=np.array([0.0, 1.0, -1.0, 0.0, 0.0]),
                             signals={"y": np.zeros(5)}, tracked="y", units={}, failure=None)
-    assert compute(trace, settles=False)["u.peak_rate"] == pytest.approx(4.0)
+    assert compute(trace, settles=False)["u.largest_step"] == pytest.approx(2.0)
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
     try:
         import docs_hooks
     finally:
         sys.path.pop(0)
-    assert "| `peak_rate` | `u` | largest \\|du/dt\\| between samples (V/s) | - | - | rtol 0.0001 |" in \
+    assert "| `largest_step` | `u` | largest \\|u[k+1] - u[k]\\| (V) | - | - | rtol 0.0001 |" in \
         docs_hooks.metrics_table()
 
 
