@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.tuning import gp, optimizers
+from furuta_cosim.tuning import bayesopt, gp
 from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
@@ -32,13 +32,13 @@ def replay(records, bounds, seed: int, xi: float, n_initial: int, batch: int, on
     if one_start:
         gp._starts = lambda theta, d: [theta]
     try:
-        bo = optimizers.ConstrainedBO(bounds, seed, xi=xi, n_initial_points=n_initial, batch=batch)
+        bo = bayesopt.ConstrainedBO(bounds, seed, xi=xi, n_initial_points=n_initial, batch=batch)
         refit = other = 0.0
-        for number, first, count in optimizers.batches(n_initial, batch, len(records)):
+        for number, first, count in bayesopt.batches(n_initial, batch, len(records)):
             started = time.perf_counter()
             list(bo.propose(records[:first], n_initial, number).points(count))
             spent = time.perf_counter() - started
-            if number % optimizers.REFIT_EVERY == 0:
+            if number % bayesopt.REFIT_EVERY == 0:
                 refit += spent
             else:
                 other += spent

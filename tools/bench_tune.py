@@ -71,7 +71,7 @@ class Timer:
 
     def __init__(self):
         self.points: list[float] = []
-        self._propose = optimizers.ConstrainedBO.propose
+        self._propose = bayesopt.ConstrainedBO.propose
 
     def __enter__(self):
         timer, propose = self, self._propose
@@ -92,11 +92,11 @@ class Timer:
             proposal._next = next_point
             return proposal
 
-        optimizers.ConstrainedBO.propose = timed
+        bayesopt.ConstrainedBO.propose = timed
         return self
 
     def __exit__(self, *exc):
-        optimizers.ConstrainedBO.propose = self._propose
+        bayesopt.ConstrainedBO.propose = self._propose
 
 
 def ours(spec, folder: Path, seed: int, calls: int, workers: int, region: str, timer=None) -> dict:
@@ -124,10 +124,10 @@ class Variant:
         self.name, self._saved = name, {}
 
     def __enter__(self):
-        bo = optimizers.ConstrainedBO
+        bo = bayesopt.ConstrainedBO
         if self.name == "restart":
-            self._saved["REGION_MIN"] = optimizers.REGION_MIN
-            optimizers.REGION_MIN = 0.5 ** 4
+            self._saved["REGION_MIN"] = bayesopt.REGION_MIN
+            bayesopt.REGION_MIN = 0.5 ** 4
         elif self.name in ("wide", "elsewhere"):
             self._saved["propose"], self._saved["_maximize"] = bo.propose, bo._maximize
             propose, maximize, name = bo.propose, bo._maximize, self.name
@@ -146,9 +146,9 @@ class Variant:
         return self
 
     def __exit__(self, *exc):
-        bo = optimizers.ConstrainedBO
+        bo = bayesopt.ConstrainedBO
         if "REGION_MIN" in self._saved:
-            optimizers.REGION_MIN = self._saved["REGION_MIN"]
+            bayesopt.REGION_MIN = self._saved["REGION_MIN"]
         if "propose" in self._saved:
             bo.propose, bo._maximize = self._saved["propose"], self._saved["_maximize"]
 
@@ -156,12 +156,12 @@ class Variant:
 def _second_region(optimizer, name, center, length, surrogate):
     import numpy as np
 
-    wide = (center, max(length, optimizers.REGION_START))
+    wide = (center, max(length, bayesopt.REGION_START))
     if name == "wide":
         return wide
     records = optimizer._seen
     X = np.array([optimizer._unit(r["x"]) for r in records])
-    half = 0.5 * length * optimizers._weights(surrogate.length_scales())
+    half = 0.5 * length * bayesopt._weights(surrogate.length_scales())
     outside = [k for k, r in enumerate(records) if r["feasible"] and np.any(np.abs(X[k] - center) > half)]
     if not outside:
         return wide
@@ -215,7 +215,7 @@ def before(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
 
 
 def _before_make():
-    """``make`` of revision BEFORE's tuning/bayesopt.py (with its tuning/gp.py), loaded from
+    """``make`` of revision BEFORE's tuning/optimizers.py (bayesopt.py since) (with its tuning/gp.py), loaded from
     this checkout's git history as modules of their own."""
     import types
 
