@@ -7,7 +7,7 @@ from pathlib import Path
 
 from furuta_cosim.documents import dumps, json_safe
 from furuta_cosim.files import write_text
-from furuta_cosim.metrics import HEADLINE, peak_metric
+from furuta_cosim.metrics import HEADLINE, entry, peak_metric
 from furuta_cosim.report.figures import plot_convergence
 from furuta_cosim.tuning.methods import front_search
 from furuta_cosim.tuning.spec import TuningSpec
@@ -119,6 +119,8 @@ def flags(spec, evaluator, best: dict, baselines: dict) -> list[str]:
             theirs = baselines[first]["metrics"].get(label, {})
             for key in (*HEADLINE, *(peak_metric(n) for n, _ in spec.constraints.max_abs),
                         *(t.metric for t in spec.objective.all_terms)):
+                if not getattr(entry(key), "cost", True):
+                    continue  # a larger value is not worse (a step's final value, its peak time)
                 ours, other = values.get(key), theirs.get(key)
                 if ours is not None and other and ours > other * (1 + WORSE) and f"{label} {key}" not in worse:
                     worse.append(f"{label} {key}")
