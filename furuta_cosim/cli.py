@@ -510,6 +510,8 @@ def cmd_replay(args) -> int:
                         f"{period['simulated']:.5g} s simulated ({100 * period['error']:+.3f} %)")
                      if period else "")
             floors = "" if c.get("floors") is None else f" = {c['floors']:.3g} noise floors"
+            if c.get("chatter"):
+                floors += f" (the floor with the loop's chatter, {c['chatter']:.3g} RMS)"
             print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{floors}{shown}"
                   + ("  (its loop closed)" if entry.get("loop") == "closed" else ""))
     if args.output:
@@ -517,7 +519,8 @@ def cmd_replay(args) -> int:
     if document["far"]:
         print(f"not reproduced: {', '.join(document['far'])} replay beyond {document['tolerance']:g} noise "
               "floors RMS (the floor: the encoder's quantum, or the stated or estimated noise); check "
-              "the plant, each column's unit and offset, and for a log recorded under a controller its loop:")
+              "the plant, each column's unit and offset, and for a log recorded under a controller its "
+              "loop: (controller, delay, voltage limit)")
     return code
 
 
@@ -545,12 +548,13 @@ def cmd_identify(args) -> int:
                                 + ([f"--seed {args.seed}"] if args.seed else [])
                                 + ([f"--holdout {args.holdout:g}"] if args.holdout is not None else [])
                                 + [f"--validate {v}" for v in args.validate or ()]
-                                + (["--accept"] if args.accept else []) + ["--resume"])
+                                + (["--accept"] if args.accept else []) + (["--force"] if args.force else [])
+                                + ["--resume"])
     try:
         document = identify(args.spec, out, workers=_workers(args), dask=args.dask, resume=args.resume,
                             starts=args.starts, profiles=not args.no_profiles, bootstrap=args.bootstrap,
                             seed=args.seed, holdout=args.holdout, validation=args.validate or (),
-                            accept=args.accept, progress=progress,
+                            accept=args.accept, force=args.force, progress=progress,
                             log=lambda line: (bar.close(), print(line, file=sys.stderr)))
     finally:
         bar.close()
@@ -870,6 +874,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="an experiment file to validate on, never fitted (repeat for more)")
     p.add_argument("--accept", action="store_true",
                    help="write plant.yaml even when the verdict does not trust the fit (exit 0)")
+    p.add_argument("--force", action="store_true",
+                   help="fit even when the experiments cannot separate some free parameters (by the "
+                        "sensitivities at the start values, checked first)")
     p.add_argument("--json", action="store_true", help="print fit.json")
     p.set_defaults(handler=cmd_identify)
 

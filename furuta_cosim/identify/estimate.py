@@ -49,24 +49,47 @@ def balancing(experiment) -> bool:
 
 
 def _model(target, values: Mapping[str, float], period: float, delay: float):
-    """(Ad, B_before, B_now, C, names): the plant linearized upright at ``values`` (Coulomb
-    friction left out) and sampled at ``period``, the voltage reaching the motor ``delay``
-    after its sample: over a sample the motor gets one command for the delay's fraction of a
-    sample and the next for the rest."""
+    """(Ad, B_before, B_now, C, whole, friction): the plant linearized upright at ``values``
+    (Coulomb friction left out of the linearization) and sampled at ``period``, the voltage
+    reaching the motor ``delay`` after its sample: over a sample the motor gets one command for
+    the delay's fraction of a sample and the next for the rest. ``friction``: None, or (the
+    discretized input matrix of the joints' torques, each joint's rate's state index, Tc0,
+    Tc1, w_c) to add the Coulomb friction back as a known torque (:func:`estimated_noise`)."""
     from scipy.linalg import expm
 
     from furuta_cosim.fmu.linearize import linearize
+    from furuta_cosim.fmu.session import model_description
 
     parameters = dict(target.fixed)
     parameters.update({k: v for k, v in values.items() if "." not in k})
-    for name in ("Tc0", "Tc1"):   # nonsmooth at rest: no derivative to linearize
+    declared = {v.name: v for v in model_description(target.fmu).modelVariables}
+
+    def value_of(name: str) -> float:
         if name in parameters:
+            return float(parameters[name])
+        start = getattr(declared.get(name), "start", None)
+        return float(start) if start is not None else 0.0
+
+    coulomb = (value_of("Tc0"), value_of("Tc1"), value_of("w_c"))
+    for name in ("Tc0", "Tc1"):   # nonsmooth at rest: no derivative to linearize
+        if name in parameters or name in declared:
             parameters[name] = 0.0
     v_name = target.input("V")[0]
+    torques = [name for name in ("tau0", "tau1") if name in declared]
     outputs = [target.output(n)[0] for n in ("theta0", "theta1", "i")]
-    lin = linearize(target.fmu, parameters=parameters, inputs={v_name: 0.0}, outputs=outputs)
-    A, B, C = np.asarray(lin.A), np.asarray(lin.B)[:, :1], np.asarray(lin.C)
+    lin = linearize(target.fmu, parameters=parameters, inputs={v_name: 0.0, **{t: 0.0 for t in torques}},
+                    outputs=outputs)
+    A, C = np.asarray(lin.A), np.asarray(lin.C)
+    B_all = np.asarray(lin.B)
+    B = B_all[:, lin.inputs.index(v_name)][:, None]
     n = A.shape[0]
+    friction = None
+    rates = [lin.states.index(s) if s in lin.states else None for s in ("dtheta0", "dtheta1")]
+    if len(torques) == 2 and None not in rates and (coulomb[0] > 0 or coulomb[1] > 0) and coulomb[2] > 0:
+        Bt = B_all[:, [lin.inputs.index(t) for t in torques]]
+        block = np.zeros((n + 2, n + 2))
+        block[:n, :n], block[:n, n:] = A * period, Bt * period
+        friction = (expm(block)[:n, n:], rates, *coulomb)
 
     def flow(seconds: float):
         block = np.zeros((n + 1, n + 1))
@@ -78,7 +101,7 @@ def _model(target, values: Mapping[str, float], period: float, delay: float):
     part = delay - whole * period
     first, g_first = flow(part) if part > 1e-12 * period else (np.eye(n), np.zeros((n, 1)))
     rest, g_rest = flow(period - part if part > 1e-12 * period else period)
-    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole
+    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole, friction
 
 
 def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +110,7 @@ def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np
     from scipy.linalg import solve_discrete_are
 
     loop = experiment.loop
-    Ad, B_before, B_now, C, whole = _model(target, values, experiment.period, loop.delay)
+    Ad, B_before, B_now, C, whole, friction = _model(target, values, experiment.period, loop.delay)
     n = Ad.shape[0]
     names = ["theta0", "theta1"] + (["i"] if "i" in experiment.outputs and C.shape[0] > 2 else [])
     C = C[:len(names)]
@@ -108,16 +131,30 @@ def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np
     gain = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
     P_after = P - gain @ C @ P
     smoother = P_after @ Ad.T @ np.linalg.inv(P)
-    predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
-    x = np.linalg.lstsq(C, y[0], rcond=None)[0]
-    for k in range(N):
-        predicted[k] = x
-        filtered[k] = x + gain @ (y[k] - C @ x)
-        if k + 1 < N:
-            x = Ad @ filtered[k] + B_before * before[k] + B_now * now[k]
-    smoothed = filtered.copy()
-    for k in range(N - 2, -1, -1):
-        smoothed[k] = filtered[k] + smoother @ (smoothed[k + 1] - predicted[k + 1])
+    driven = np.outer(before, B_before) + np.outer(now, B_now)   # what the voltage adds, per sample
+
+    def smooth(known: np.ndarray) -> np.ndarray:
+        predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
+        x = np.linalg.lstsq(C, y[0], rcond=None)[0]
+        for k in range(N):
+            predicted[k] = x
+            filtered[k] = x + gain @ (y[k] - C @ x)
+            if k + 1 < N:
+                x = Ad @ filtered[k] + known[k]
+        smoothed = filtered.copy()
+        for k in range(N - 2, -1, -1):
+            smoothed[k] = filtered[k] + smoother @ (smoothed[k + 1] - predicted[k + 1])
+        return smoothed
+
+    smoothed = smooth(driven)
+    if friction is not None:
+        # the Coulomb friction the linearization left out, added back as the joints' torques at
+        # the rates of a first pass: without it the arm's estimate drifts where it reverses,
+        # and a fit through it biased C0 by a fifth (tools/bench_balancing.py)
+        Bt, rates, tc0, tc1, w_c = friction
+        torque = np.column_stack([-tc0 * np.tanh(smoothed[:, rates[0]] / w_c),
+                                  -tc1 * np.tanh(smoothed[:, rates[1]] / w_c)])
+        smoothed = smooth(driven + torque @ Bt.T)
     angles = smoothed @ C[:2].T
     return y[:, 0] - angles[:, 0], y[:, 1] - angles[:, 1]
 

@@ -126,6 +126,8 @@ class Experiment:
     loop: Loop | None = None     # the controller in the loop: the replay closes it (inputs unused)
     segments: float = 0.0        # s: fitted by multiple shooting in segments this long (0: whole)
     alias: str = ""              # a part of a log (identify/split.py): the whole log's name
+    # how a start given as `data` was read (state -> a line identify prints)
+    start_from: Mapping[str, str] = field(default_factory=lambda: Frozen({}))
 
     @property
     def samples(self) -> int:
@@ -201,7 +203,9 @@ def load_experiment(path: str | Path) -> Experiment:
     period = _uniform(check, t, csv, table[LINE][keep])
     inputs = _inputs(check, top.get("inputs", {}), table, columns, keep, period)
     outputs = _outputs(check, top["outputs"], table, columns, keep)
-    start = _start(check, top.get("start", {}), outputs)
+    # a stated start is checked against the data where the window cuts the log after its first
+    # row: a log's own first row is where its logger knew the state (a rig run starts at rest)
+    start, start_from = _start(check, top.get("start", {}), outputs, t, cut=first > 0)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
     loop = _loop(check, top["loop"], path, table, columns, keep, period) if "loop" in top else None
     segments = 0.0
@@ -222,7 +226,8 @@ def load_experiment(path: str | Path) -> Experiment:
         units.update({str(n): e["unit"] for n, e in section.items() if isinstance(e, dict) and "unit" in e})
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
-                      Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0))
+                      Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
+                      start_from=Frozen(start_from))
 
 
 def _loop(check: Checker, value, path: Path, table, columns, keep, period: float) -> Loop | None:
@@ -587,12 +592,49 @@ def estimated_noise(values: np.ndarray) -> float:
     return max(float(np.std(np.diff(values, 2))) / math.sqrt(6.0), floor)
 
 
-def _start(check: Checker, value, outputs: Mapping[str, Measured]) -> dict:
+# a rate's start read from its angle: a quadratic through the angle's first RATE_SPAN seconds
+# (at least RATE_SAMPLES samples); a stated start further than CONTRADICTS standard errors from
+# what the data say (and than one quantum) is refused
+RATE_SPAN, RATE_SAMPLES, CONTRADICTS = 0.02, 5, 5.0
+_RATES = {"dtheta0": "theta0", "dtheta1": "theta1"}
+_STATE_UNITS = {"theta0": "rad", "theta1": "rad", "dtheta0": "rad/s", "dtheta1": "rad/s", "i": "A"}
+
+
+def start_rate(measured: Measured, t: np.ndarray) -> tuple[float, float, int]:
+    """(rate, its standard error, samples used) of a measured angle at the window's start: the
+    slope at the first sample of a least-squares quadratic through its first RATE_SPAN s."""
+    m = min(len(t), max(RATE_SAMPLES, int(np.searchsorted(t, t[0] + RATE_SPAN, side="right"))))
+    if m < 3:
+        return 0.0, math.inf, m
+    s = t[:m] - t[0]
+    X = np.column_stack([np.ones(m), s, s * s])
+    coefficients, *_ = np.linalg.lstsq(X, measured.values[:m], rcond=None)
+    spread = np.linalg.pinv(X.T @ X)
+    return float(coefficients[1]), float(measured.sigma * math.sqrt(max(spread[1, 1], 0.0))), m
+
+
+def _start(check: Checker, value, outputs: Mapping[str, Measured], t: np.ndarray,
+           cut: bool = True) -> tuple[dict, dict]:
+    """The start states: a number, ``data`` (a measured output's first sample; a rate, its
+    angle's slope at the window's start) or ``{free: [lo, hi]}``; and how each ``data`` was
+    read. A number that the data contradict (beyond the noise) is refused: a window cut from a
+    log mid-motion keeps the log's own start (rates 0, current 0) otherwise, and the fit bends
+    the plant to it (checked where ``cut``: the window starts after the log's first row)."""
     section = check.mapping(value, "start", optional=tuple(value) if isinstance(value, dict) else ())
-    found = {}
+    found, start_from = {}, {}
     for name, entry in (section or {}).items():
         key = f"start.{name}"
-        if entry == "data":
+        if entry == "data" and name in _RATES and name not in outputs:
+            angle = _RATES[name]
+            if angle not in outputs:
+                check.fail(key, f"'data' takes {name} from the measured {angle} at the window's start, "
+                                f"but outputs names no {angle} (outputs: {', '.join(outputs) or 'none'})")
+                continue
+            rate, error, m = start_rate(outputs[angle], t)
+            found[str(name)] = rate
+            start_from[str(name)] = (f"{rate:.4g} rad/s (+-{error:.2g}), the slope of {angle} over its first "
+                                     f"{m} samples")
+        elif entry == "data":
             if name not in outputs:
                 check.fail(key, f"'data' takes the measured {name} at the window's start, but "
                                 f"outputs names no {name} (outputs: {', '.join(outputs) or 'none'})")
@@ -619,4 +661,28 @@ def _start(check: Checker, value, outputs: Mapping[str, Measured]) -> dict:
             number = check.number(entry, key)
             if number is not None:
                 found[str(name)] = number
-    return found
+                if cut:
+                    _contradicted(check, key, str(name), number, outputs, t)
+    return found, start_from
+
+
+def _contradicted(check: Checker, key: str, name: str, stated: float, outputs: Mapping[str, Measured],
+                  t: np.ndarray) -> None:
+    """A stated start the data say otherwise of, by more than CONTRADICTS standard errors of
+    what they say and more than a quantum (or noise standard deviation): one line."""
+    unit = _STATE_UNITS.get(name, "")
+    if name in outputs:
+        m = outputs[name]
+        said, error, how = float(m.values[0]), m.sigma, f"the measured {name} at the window's start"
+        slack = max(m.quantum, m.sigma)
+    elif name in _RATES and _RATES[name] in outputs:
+        m = outputs[_RATES[name]]
+        said, error, used = start_rate(m, t)
+        how = f"the slope of the measured {_RATES[name]} over the window's first {used} samples"
+        slack = max(m.quantum, m.sigma) / max(float(t[min(used, len(t)) - 1] - t[0]), 1e-300)
+    else:
+        return
+    if math.isfinite(error) and abs(stated - said) > CONTRADICTS * error + slack:
+        check.fail(key, f"{stated:g} {unit}, but {how} is {said:.4g} {unit} (+-{error:.2g}; t = {t[0]:g} s): "
+                        f"a window cut mid-motion keeps the log's own start otherwise; give {name}: data "
+                        "(read from the log), {free: [lo, hi]}, or the value at the window's start".replace("  ", " "))

@@ -317,6 +317,7 @@ class FitResult:
     message: str
     unseen: tuple = ()             # unknowns the data do not depend on (not identifiable)
     optima: list = None            # a multi-start's distinct optima (lowest cost first)
+    precheck: dict | None = None   # the Jacobian at the start values read (identify/precheck.py)
 
     def document(self) -> dict:
         """fit.json: every value with its interval, the correlations, the residuals."""
@@ -332,10 +333,13 @@ class FitResult:
             seen = u.name not in self.unseen
             parameters[u.name] = {
                 "value": value, "start": self.start[u.name],
-                "identifiable": seen,
-                "verdict": "identifiable" if seen else
-                           "not identifiable from these experiments: the data do not depend on it "
-                           "(kept at its start)",
+                # a seen unknown's verdict is read from its interval (identify/verdict.py
+                # read_intervals) or its profile (identify/run.py), never assumed
+                "identifiable": False if not seen else None,
+                "verdict": "not judged" if seen else
+                           "structurally not identifiable from these experiments: the data do not "
+                           "depend on it (kept at its start)",
+                "rests_on": "the data do not depend on it" if not seen else "nothing yet",
                 "stderr": err if seen else None,
                 "stderr_plain": float(sd_plain[k] * scales[k]) if seen else None,
                 "interval": [value - Z95 * err, value + Z95 * err] if seen else None,
@@ -358,6 +362,7 @@ class FitResult:
                          for e in self.spec.experiments + self.spec.validation},
                 "stages": self.stages, "simulations": self.simulations,
                 "seconds": self.seconds, "cost": self.cost, "message": self.message,
+                "precheck": self.precheck,
                 "starts": {"count": sum(len(o["starts"]) for o in self.optima or []) or 1,
                            "optima": [{"cost": o["cost"], "values": o["values"], "starts": o["starts"]}
                                       for o in self.optima or []]}}
@@ -428,7 +433,8 @@ def distinct_optima(optima: list[dict], items) -> list[dict]:
 def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | None = None,
         progress: Callable[[str, int, float], None] = lambda stage, n, cost: None,
         log: Callable[[str], None] = lambda line: None, resume: dict | None = None,
-        on_stage: Callable[[dict], None] = lambda state: None, starts: int = 1, seed: int = 0) -> FitResult:
+        on_stage: Callable[[dict], None] = lambda state: None, starts: int = 1, seed: int = 0,
+        force: bool = False) -> FitResult:
     """Fit the spec's free parameters on ``target``; see the module docstring.
 
     With ``starts`` > 1 the staged fit runs from each of :func:`start_points` (``seed``: their
@@ -436,7 +442,11 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     found are reported. ``on_stage(state)`` is called after every finished stage with what a
     later call needs to go on from there (``resume=state``): the start and stage, the values,
     the stages' record, the optima so far and the simulations spent. A resumed fit gives the
-    fit an uninterrupted one gives."""
+    fit an uninterrupted one gives.
+
+    Before the first stage the Jacobian at the start values is read (identify/precheck.py):
+    unknowns the experiments cannot separate stop the fit with a NotSeparable error naming
+    them, unless ``force``."""
     started = time.perf_counter()
     check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free),
                 str(spec.path))
@@ -463,6 +473,21 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
                   for e, (_, why) in zip(everything, start_outputs) if why]
         if failed:
             raise ConfigError(failed)
+        far = _say_far(everything, start_outputs, items, log)
+        misread = [e for e in far if e.get("loop")]
+        if misread and resume is None and not force:
+            from furuta_cosim.identify.precheck import loop_line
+
+            raise ConfigError([f"{e['file']}: {loop_line(e)}" for e in misread]
+                              + ["the fit stopped before it began: read that column as named (its unit:, the sign, "
+                                 "or its offset:) and fit again; --force fits anyway"])
+        if resume is None:  # a resumed run passed this check when it began
+            readings = _separable_or_stop(runner, spec, items, x0, force, log)
+        else:
+            readings = resume.get("precheck")
+        if readings is not None:
+            readings["far"] = far
+        state["precheck"] = readings
         for s in range(state["start"], len(points)):
             resumed = s == state["start"] and state["x"] is not None
             x = np.array(state["x"], dtype=float) if resumed else points[s].copy()
@@ -478,7 +503,8 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
                 x, message = _stage(runner, spec, items, x, lower, upper, k, plan, budget, record,
                                     message, progress, log, f" of start {s + 1}" if len(points) > 1 else "")
                 state = {"start": s, "stage": k + 1, "x": [float(v) for v in x], "record": record,
-                         "message": message, "optima": state["optima"], "budget_from": budget - spec.max_simulations}
+                         "message": message, "optima": state["optima"], "budget_from": budget - spec.max_simulations,
+                         "precheck": readings}
                 on_stage({**state, "simulations": runner.count})
             cost = record[-1]["cost"] if record else math.nan
             state["optima"] = state["optima"] + [{"x": [float(v) for v in x], "cost": float(cost),
@@ -526,14 +552,110 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
         first = experiment.corrected(first, starts)
         before[experiment.name] = compare(experiment, first)
         if fitted is None:
-            raise ConfigError([f"{experiment.path}: the simulation fails at the fitted values: {why}"])
+            fitted_to = ", ".join(e.name for e in spec.experiments)
+            raise ConfigError(_far_lines(everything, start_outputs, starts)
+                              + [f"{experiment.path}: {experiment.name}'s simulation fails at the values fitted "
+                                 f"to {fitted_to}"
+                                 + (" (it was not fitted: the values it fails at come from the others)"
+                                    if experiment not in spec.experiments else "") + f": {why}"])
         fitted = experiment.corrected(fitted, values)
         (scored if experiment in spec.experiments else held)[experiment.name] = compare(experiment, fitted)
         simulated[experiment.name] = {"start": first, "fit": fitted}
     return FitResult(spec, target, items, {u.name: u.start for u in items}, values, covariance,
                      plain, windows, scored, held, before, simulated, record,
                      simulations, time.perf_counter() - started, float(0.5 * r @ r), message,
-                     tuple(items[k].name for k in unseen), optima)
+                     tuple(items[k].name for k in unseen), optima, readings)
+
+
+def far_columns(experiments, start_outputs, starts: dict) -> list[dict]:
+    """Each output whose replay at the start values is hundreds of noise floors off
+    (identify/precheck.py FAR): experiment, output, its column and unit, the floors, and the
+    other reading of the column that would replay far better (``hint``, None if none does)."""
+    from furuta_cosim.identify.precheck import far_outputs, unit_hint
+    from furuta_cosim.identify.replay import compare
+    from furuta_cosim.identify.verdict import floor_of
+
+    simulated = {e.name: e.corrected(outputs, starts) for e, (outputs, _) in zip(experiments, start_outputs)
+                 if outputs is not None}
+    by_name = {e.name: e for e in experiments}
+    before = {name: compare(by_name[name], outputs) for name, outputs in simulated.items()}
+    found = []
+    for name, output, ratio in far_outputs(before, floor_of):
+        e = by_name[name]
+        unit = e.units.get(output)
+        hint = unit_hint(e.outputs[output].values, simulated[name][output], unit, floor_of(before[name][output])[0])
+        found.append({"experiment": name, "file": str(e.path), "output": output,
+                      "column": e.outputs[output].column, "unit": unit, "floors": ratio,
+                      "hint": None if hint is None else {"reading": hint[0], "floors": hint[1]}})
+    return found
+
+
+def far_line(entry: dict) -> str:
+    """One far column as a line: where it starts, and the reading that would fit it if any."""
+    line = (f"{entry['experiment']} {entry['output']}: at the start values it replays {entry['floors']:.3g} "
+            f"noise floors off before anything is fitted")
+    if entry["hint"]:
+        line += (f"; its column {entry['column']!r} read {entry['hint']['reading']} would replay at "
+                 f"{entry['hint']['floors']:.3g}: check the unit, offset and sign of that column")
+    return line
+
+
+def _far_lines(experiments, start_outputs, starts: dict) -> list[str]:
+    return [f"{e['file']}: outputs.{e['output']}: {far_line(e)}" for e in far_columns(experiments, start_outputs, starts)]
+
+
+def _say_far(experiments, start_outputs, items, log) -> list[dict]:
+    from furuta_cosim.identify.precheck import loop_hint, loop_line
+
+    found = far_columns(experiments, start_outputs, {u.name: u.start for u in items})
+    for entry in found:
+        log(f"  note: {far_line(entry)}")
+    for experiment in experiments:
+        entry = loop_hint(experiment)
+        if entry is not None and entry["hint"] is not None:
+            entry["loop"] = True
+            found.append(entry)
+            log(f"  note: {loop_line(entry)}")
+    return found
+
+
+class NotSeparable(ConfigError):
+    """The experiments cannot separate some free unknowns (identify/precheck.py): the fit
+    stopped before it began; ``readings`` holds what the Jacobian at the start said."""
+
+    def __init__(self, problems: list[str], readings: dict):
+        super().__init__(problems)
+        self.readings = readings
+
+
+def _separable_or_stop(runner, spec, items, x0, force: bool, log) -> dict:
+    """The Jacobian at the start values read (identify/precheck.py): logged, and a
+    NotSeparable error when a combination of unknowns is not separable (unless ``force``)."""
+    from furuta_cosim.identify.precheck import describe, natural, next_step, separability
+
+    clock = time.perf_counter()
+    before = runner.count
+    problem = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
+    J = problem.jac(x0)
+    J, widths = natural(J, items)
+    readings = separability(J, [u.name for u in items], J.shape[0], widths)
+    readings["simulations"] = runner.count - before
+    readings["seconds"] = time.perf_counter() - clock
+    if not readings["groups"]:
+        log(f"  separable: every free unknown moves the outputs at the start values "
+            f"({readings['simulations']} simulations, {readings['seconds']:.1f} s)")
+        return readings
+    lines = [describe(g) for g in readings["groups"]]
+    outputs = {o for e in spec.experiments for o in e.outputs}
+    step = next_step(readings["groups"], outputs, True)
+    if force:
+        for line in lines:
+            log(f"  warning: {line}; fitted all the same (--force)")
+        return readings
+    raise NotSeparable([f"{spec.path}: free: {line}" for line in lines]
+                       + [f"{spec.path}: the fit stopped before it began (the Jacobian at the start values, "
+                          f"{readings['simulations']} simulations, {readings['seconds']:.1f} s); next: {step}"],
+                       readings)
 
 
 def _stage(runner, spec, items, x, lower, upper, k: int, plan, budget: int, record: list, message: str,

@@ -23,7 +23,15 @@ Verdicts: ``identifiable`` (the profile crosses the threshold on both sides with
 ``practically not identifiable`` (it rises, but stays below the threshold up to a bound on one
 side or both: the data bound the parameter on one side at most), ``structurally not
 identifiable`` (it is flat: the data do not depend on the parameter, or only in a combination
-the other unknowns make up for).
+the other unknowns make up for), ``not profiled`` (its profile ran out of the budget before it
+crossed on both sides, or the fit had not converged: a profile from a point that is not the
+optimum bounds nothing).
+
+Cost. Each point's refit starts where the fit's own Jacobian predicts the other unknowns go
+when this one is held (the linearized optimum), so that it converges in one or two
+Gauss-Newton steps; a refit stops at a relative cost change of 1e-6 (a hundredth of a percent
+of the threshold is all an interval's end needs). All profiles together spend at most the
+spec's ``max_simulations``, each at most its share of it.
 """
 
 from __future__ import annotations
@@ -37,11 +45,12 @@ from furuta_cosim.identify.fit import Problem, Runner
 
 CHI2_95 = 3.841458820694124    # chi2 quantile, 1 degree of freedom
 STEPS = 8                       # profile points per side at most (growing steps, the last at a bound)
-FIRST_STEP = 0.5                # the first step, in sandwich standard errors
+FIRST_STEP = 1.0                # the first step, in sandwich standard errors (then 2, 4, ...)
 GROWTH = 2.0
 FLAT = 1e-3                     # a rise below this fraction of the threshold everywhere: flat
-REFIT = 60                      # residual evaluations per refit at most
-VERDICTS = ("identifiable", "practically not identifiable", "structurally not identifiable")
+REFIT = 20                      # residual evaluations per refit at most
+REFIT_TOLERANCE = 1e-6          # a refit's relative change of cost (and step) where it stops
+VERDICTS = ("identifiable", "practically not identifiable", "structurally not identifiable", "not profiled")
 
 
 def threshold(cost: float, dof: int, sandwich_var: float, plain_var: float) -> float:
@@ -53,7 +62,7 @@ def threshold(cost: float, dof: int, sandwich_var: float, plain_var: float) -> f
 
 
 def profile_all(spec, target, result, *, workers: int = 1, dask: str | None = None,
-                names=None, done: Mapping | None = None,
+                names=None, done: Mapping | None = None, budget: int | None = None,
                 progress: Callable[[str, int, float], None] = lambda name, n, cost: None,
                 log: Callable[[str], None] = lambda line: None,
                 on_profile: Callable[[str, dict], None] = lambda name, found: None) -> dict:
@@ -62,18 +71,24 @@ def profile_all(spec, target, result, *, workers: int = 1, dask: str | None = No
 
     Returns name -> {"values", "rise" (the cost above the minimum at each), "threshold",
     "interval" ([lo, hi], None on a side that stays below the threshold), "verdict",
-    "simulations"}."""
+    "simulations"}. ``budget``: simulations for all profiles (the spec's max_simulations when
+    None), shared equally; a profile that runs out of its share is ``not profiled``."""
+
     items = result.items
     index = {u.name: k for k, u in enumerate(items)}
     names = [p.name for p in spec.free] if names is None else list(names)
     x_hat = np.array([result.values[u.name] / u.scale for u in items])
     found = dict(done or {})
+    budget = spec.max_simulations if budget is None else int(budget)
+    todo = [n for n in names if n not in found and n not in result.unseen]
+    share = budget // max(len(todo), 1)
     runner = Runner(target, spec.experiments, workers, dask)
     try:
         problem = Problem(runner, spec.experiments, items, None, math.inf, lambda n, c: None)
         r = problem.fun(x_hat)
         cost = 0.5 * float(r @ r)
         dof = len(r) - len(items)
+        J = problem.jac(x_hat) if todo else None
         for name in names:
             if name in found:
                 continue
@@ -84,10 +99,12 @@ def profile_all(spec, target, result, *, workers: int = 1, dask: str | None = No
                                "why": "the data do not depend on it (its column of the Jacobian is zero)"}
             else:
                 before = runner.count
+                problem.budget = before + share
                 found[name] = _profile(problem, items, x_hat, k, cost,
                                        threshold(cost, dof, result.covariance[k, k], result.plain[k, k]),
                                        math.sqrt(max(result.covariance[k, k], 0.0)),
-                                       lambda n, c, name=name: progress(f"profile {name}", n, c))
+                                       lambda n, c, name=name: progress(f"profile {name}", n, c),
+                                       _drift(J, k))
                 found[name]["simulations"] = runner.count - before
             log(f"  profile {name}: {found[name]['verdict']}"
                 + (f", {_interval_text(found[name]['interval'])}" if found[name]["interval"] else ""))
@@ -102,22 +119,66 @@ def _interval_text(interval) -> str:
     return f"[{'below its bound' if lo is None else format(lo, '.4g')}, {'above its bound' if hi is None else format(hi, '.4g')}]"
 
 
+def _drift(J: np.ndarray | None, k: int) -> np.ndarray | None:
+    """How the other unknowns' optimum moves per unit of unknown ``k`` held (scaled units), to
+    first order: minus the least-squares solution of J_others dz = J_k."""
+    if J is None or J.shape[1] < 2:
+        return None
+    others = [j for j in range(J.shape[1]) if j != k]
+    found, *_ = np.linalg.lstsq(J[:, others], J[:, k], rcond=None)
+    return -found if np.all(np.isfinite(found)) else None
+
+
 def _profile(problem: Problem, items, x_hat: np.ndarray, k: int, cost: float, rise_max: float,
-             stderr: float, progress) -> dict:
-    """One parameter's profile: both sides walked from the estimate (module docstring)."""
-    from scipy.optimize import least_squares
+             stderr: float, progress, drift: np.ndarray | None = None) -> dict:
+    """One parameter's profile: both sides walked from the estimate (module docstring); its
+    refits start where ``drift`` (:func:`_drift`) predicts, and it ends ``not profiled`` when
+    ``problem``'s budget runs out."""
+    from furuta_cosim.identify.fit import BudgetSpent
 
     others = [j for j in range(len(items)) if j != k]
     lower = np.array([u.bounds[0] / u.scale for u in items])
     upper = np.array([u.bounds[1] / u.scale for u in items])
-    step0 = FIRST_STEP * stderr / items[k].scale if math.isfinite(stderr) and stderr > 0 else math.inf
+    # the covariance (and so ``stderr``) is in the fit's scaled units already, as x_hat is
+    step0 = FIRST_STEP * stderr if math.isfinite(stderr) and stderr > 0 else math.inf
     points = {float(x_hat[k]): 0.0}
     crossing: list = [None, None]
+    try:
+        spent = _walk(problem, items, x_hat, k, cost, rise_max, step0, lower, upper, others, points,
+                      crossing, progress, drift)
+    except BudgetSpent:
+        spent = True
+    values = sorted(points)
+    rises = [points[v] for v in values]
+    scale = items[k].scale
+    if spent and (crossing[0] is None or crossing[1] is None):
+        return {"values": [v * scale for v in values], "rise": rises, "threshold": rise_max,
+                "interval": None, "verdict": VERDICTS[3],
+                "why": "its profile ran out of its share of the budget before it crossed the threshold "
+                       "on both sides"}
+    flat = max(rises) < FLAT * rise_max
+    if flat:
+        verdict = VERDICTS[2]
+    elif crossing[0] is None or crossing[1] is None:
+        verdict = VERDICTS[1]
+    else:
+        verdict = VERDICTS[0]
+    interval = None if flat else [None if c is None else c * scale for c in crossing]
+    return {"values": [v * scale for v in values], "rise": rises, "threshold": rise_max,
+            "interval": interval, "verdict": verdict}
+
+
+def _walk(problem, items, x_hat, k, cost, rise_max, step0, lower, upper, others, points, crossing,
+          progress, drift) -> bool:
+    """Walk both sides of unknown ``k`` (filling ``points`` and ``crossing``); False when done."""
+    from scipy.optimize import least_squares
+
     for side, (edge, sign) in enumerate(((lower[k], -1.0), (upper[k], 1.0))):
         room = abs(edge - x_hat[k])
         if room <= 0:
             continue
-        step = min(step0, room / GROWTH ** (STEPS - 1))
+        # from one standard error, doubling; the last point at the bound whatever it reached
+        step = step0 if math.isfinite(step0) else room / GROWTH ** (STEPS - 1)
         z = x_hat[others].copy()
         last_value, last_rise = float(x_hat[k]), 0.0
         for n in range(STEPS):
@@ -135,9 +196,12 @@ def _profile(problem: Problem, items, x_hat: np.ndarray, k: int, cost: float, ri
                 return problem.jac(full.copy(), columns=others)
 
             if others:
+                if drift is not None:  # where the other unknowns' optimum goes, to first order
+                    z = z + drift * (value - last_value)
                 z0 = np.clip(z, lower[others], upper[others])
                 found = least_squares(fun, z0, jac=jac, bounds=(lower[others], upper[others]), x_scale="jac",
-                                      method="trf", xtol=1e-8, ftol=1e-8, gtol=1e-8, max_nfev=REFIT)
+                                      method="trf", xtol=REFIT_TOLERANCE, ftol=REFIT_TOLERANCE,
+                                      gtol=REFIT_TOLERANCE, max_nfev=REFIT)
                 z, at = found.x, float(found.cost)
             else:  # the only unknown: nothing to fit again
                 r = fun(z)
@@ -154,16 +218,4 @@ def _profile(problem: Problem, items, x_hat: np.ndarray, k: int, cost: float, ri
             last_value, last_rise = value, rise
             if value == edge:
                 break
-    values = sorted(points)
-    rises = [points[v] for v in values]
-    flat = max(rises) < FLAT * rise_max
-    if flat:
-        verdict = VERDICTS[2]
-    elif crossing[0] is None or crossing[1] is None:
-        verdict = VERDICTS[1]
-    else:
-        verdict = VERDICTS[0]
-    scale = items[k].scale
-    interval = None if flat else [None if c is None else c * scale for c in crossing]
-    return {"values": [v * scale for v in values], "rise": rises, "threshold": rise_max,
-            "interval": interval, "verdict": verdict}
+    return False

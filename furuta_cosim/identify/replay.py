@@ -290,6 +290,56 @@ def compare(experiment: Experiment, simulated: Mapping[str, np.ndarray]) -> dict
     return found
 
 
+def chatter(session, target: Target, experiment: Experiment, simulated: Mapping[str, np.ndarray],
+            values: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Per output that no encoder counts (the current), what a loop closed on counted angles
+    cannot reproduce: the RMS difference between ``simulated`` and a second replay whose
+    encoders' zero is half a count away. The command's chatter that the rounding drives is
+    a different draw in every run; on a swing-up log of the virtual board it moves the current
+    by 0.17 A RMS between two such replays while the angles stay within a quantum of the log.
+    Empty for a log without a loop, or one whose angles are estimated (a balancing log: its
+    controller sees what it logged)."""
+    if experiment.loop is None or experiment.loop.estimate:
+        return {}
+    names = [n for n, m in experiment.outputs.items() if n == "i" and not m.quantum]
+    if not names:
+        return {}
+    shifted, _ = closed_loop(session, target, experiment, values, phase=0.5)
+    return {n: float(math.sqrt(np.mean((shifted[n] - simulated[n]) ** 2))) for n in names}
+
+
+def rebuilt_command(experiment: Experiment, readings: Mapping[str, np.ndarray] | None = None) -> np.ndarray | None:
+    """The command the log's loop computes from what the log recorded (no plant: the logged
+    angles as its encoders counted them, their rates by the loop's filter, the logged current,
+    the reference and feedforward), clipped to its limit; None without a loop or the logged
+    voltage. ``readings`` replaces logged outputs (another reading of a column: identify/
+    precheck.py loop_hint). On a log of the loop it names, this is the logged command to
+    rounding; a column read in the wrong unit, sign or zero, or another loop, shows."""
+    from furuta_cosim.measurement import RateFilter
+
+    loop = experiment.loop
+    if loop is None or "V" not in experiment.inputs or np.isscalar(experiment.inputs["V"]):
+        return None
+    runtime = _runtime(loop, experiment.period)
+    runtime.reset()
+    n = experiment.samples
+    values = {name: m.values for name, m in experiment.outputs.items()}
+    values.update(readings or {})
+    zeros = np.zeros(n)
+    a0, a1, current = (values.get(name, zeros) for name in ("theta0", "theta1", "i"))
+    reference = loop.reference if loop.reference is not None else zeros
+    feedforward = loop.feedforward if loop.feedforward is not None else zeros
+    rates = RateFilter(experiment.period, loop.rate_filter)
+    found = np.zeros(n)
+    for k in range(n):
+        r0, r1 = rates((float(a0[k]), float(a1[k])))
+        found[k] = float(runtime.control([float(a0[k]), r0, float(a1[k]), r1, float(current[k])],
+                                         float(reference[k]))) + float(feedforward[k])
+    if loop.voltage is not None:
+        found = np.clip(found, -loop.voltage, loop.voltage)
+    return found
+
+
 _RUNTIMES: dict = {}   # (controller file or law, its sha256, period) -> (file, runtime), in this process
 
 
@@ -304,7 +354,8 @@ def _runtime(loop, period: float):
 
 
 def closed_loop(session, target: Target, experiment: Experiment,
-                values: Mapping[str, float] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+                values: Mapping[str, float] | None = None,
+                phase: float = 0.0) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """(outputs, the voltage the controller wrote) of the experiment with its loop closed: at each
     sample the controller sees what it saw on the rig (the angles as the encoders count them,
     rates by the same filter, the current), the log's feedforward is added, the command is
@@ -316,7 +367,7 @@ def closed_loop(session, target: Target, experiment: Experiment,
     With the loop's ``estimate`` (a balancing log, identify/estimate.py) the controller sees
     the angles it logged moved by the simulation's departure from their true values as
     estimated on the plant at ``values``; else it sees the simulated angles rounded to
-    counts."""
+    counts, the encoders' zero moved by ``phase`` counts (:func:`chatter`)."""
     import math as _math
 
     from furuta_cosim.measurement import RateFilter, counted
@@ -360,7 +411,8 @@ def closed_loop(session, target: Target, experiment: Experiment,
             if noise is not None:   # what it logged, moved as the simulation is from the truth
                 a0, a1 = theta0 + noise[0][k], theta1 + noise[1][k]
             else:
-                a0, a1 = counted(theta0, 0.0, per_count), counted(theta1, _math.pi, per_count)
+                shift = phase * per_count
+                a0, a1 = counted(theta0, shift, per_count), counted(theta1, _math.pi + shift, per_count)
             r0, r1 = rates((a0, a1))
             u = float(runtime.control([a0, r0, a1, r1, current], float(reference[k]))) + float(feedforward[k])
             if limit is not None:

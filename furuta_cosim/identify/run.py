@@ -20,7 +20,7 @@ from furuta_cosim.errors import ConfigError
 from furuta_cosim.files import folder, output_folder, write_text
 from furuta_cosim.identify.experiment import Experiment, load_experiment
 from furuta_cosim.identify.fit import FitResult, fit, with_values
-from furuta_cosim.identify.replay import (SimulationFailed, Target, check_names, compare,
+from furuta_cosim.identify.replay import (SimulationFailed, Target, chatter, check_names, compare,
                                           open_session, simulate)
 from furuta_cosim.identify.spec import load_identify_spec
 from furuta_cosim.identify.split import parts_of
@@ -77,6 +77,11 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                      "sha256": experiment.sha256, "samples": experiment.samples,
                      "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
+            try:
+                for output_name, rms in chatter(session, target, experiment, simulated).items():
+                    entry["outputs"][output_name]["chatter"] = rms
+            except SimulationFailed:
+                pass  # the shifted replay failed: the output is judged on its stated noise alone
             for output_name, c in entry["outputs"].items():
                 floor, what = floor_of(c)
                 c["floors"] = c["rms"] / floor if floor > 0 else None
@@ -107,7 +112,7 @@ def _figures(out: Path, experiment: Experiment, simulated: dict) -> list[Path]:
 def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, dask: str | None = None,
              fmi_version: str = "2.0", resume: bool = False, starts: int = 1, profiles: bool = True,
              bootstrap: int = 0, seed: int = 0, holdout: float | None = None,
-             validation: Sequence[str | Path] = (), accept: bool = False,
+             validation: Sequence[str | Path] = (), accept: bool = False, force: bool = False,
              progress=lambda stage, n, cost: None, log: Callable[[str], None] = lambda line: None) -> dict:
     """Fit the plant parameters of an identify spec to its experiments and write the run
     directory: ``plant.yaml`` (the fitted plant) and ``fit.json`` first, then ``report.html``
@@ -148,6 +153,10 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     accept : bool
         Write the fitted plant even when the verdict (identify/verdict.py) does not trust it;
         otherwise such a fit's plant file carries ``rejected`` and no ``--plant`` reads it.
+    force : bool
+        Fit even when the Jacobian at the start values says the experiments cannot separate
+        some free unknowns (identify/precheck.py); otherwise the fit stops before it begins
+        with a NotSeparable error (a ConfigError) that names them and the next step.
     progress : callable
         ``progress(stage, simulations, cost)``, called as the fit goes.
     log : callable
@@ -201,6 +210,9 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         elif e.loop is not None:
             log(f"note: {e.name}: not a balancing log (the pendulum leaves upright): fitted on its "
                 "logged voltage, open loop")
+    for e in spec.experiments + spec.validation:
+        for state_name, how in e.start_from.items():
+            log(f"note: {e.name}: starts with {state_name} = {how} (start: data)")
     saved = {"fit": state, "profiles": (state or {}).get("profiles", {})}
 
     def checkpoint() -> None:
@@ -216,9 +228,25 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         checkpoint()
 
     result = fit(spec, target, workers=workers, dask=dask, progress=progress, log=log,
-                 resume=state, on_stage=fitted, starts=starts, seed=seed)
+                 resume=state, on_stage=fitted, starts=starts, seed=seed, force=force)
     document = result.document()
-    if profiles:
+    from furuta_cosim.identify.fit import physical_ranges
+    from furuta_cosim.identify.verdict import judge, read_intervals
+
+    ranges = physical_ranges(target)
+    converged = not result.message.startswith("stopped")
+    # the verdict on the replays alone, before the profiles spend anything: a fit that does not
+    # reproduce its data, or is worse than its start, is not trusted whatever its intervals
+    replays = [r for r in judge(document, ranges, spec.tolerance)["reasons"] if "replay" in r]
+    skipped = None
+    if profiles and not converged:
+        skipped = "not profiled: the fit did not converge"
+        log("  profiles skipped: the fit stopped at its budget, and a profile from a point that is not "
+            "the optimum bounds nothing")
+    elif profiles and replays:
+        skipped = "not profiled: the fit does not reproduce its data"
+        log(f"  profiles skipped: the fit is not trusted whatever its intervals ({replays[0]})")
+    if profiles and skipped is None:
         from furuta_cosim.identify.profile import profile_all
 
         clock = time.perf_counter()
@@ -237,13 +265,12 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         document["bootstrap"]["seconds"] = time.perf_counter() - clock
     document["spec_sha256"] = identity["spec_sha256"]
     document["options"] = identity["options"]
-    from furuta_cosim.identify.fit import physical_ranges
-    from furuta_cosim.identify.verdict import judge
+    read_intervals(document, ranges, "not profiled" if not profiles else skipped or "its profile did not finish")
 
     document["loops"] = {e.name: "closed" if e.loop is not None else
                          "segments" if e.alias and "@" in e.name else "open"
                          for e in result.spec.experiments + result.spec.validation}
-    document["verdict"] = verdict = judge(document, physical_ranges(target), spec.tolerance)
+    document["verdict"] = verdict = judge(document, ranges, spec.tolerance)
     if any(e.loop is not None and e.loop.estimate for e in result.spec.experiments):
         verdict["notes"].append("intervals fitted through a balancing log's loop are narrower than their "
                                 "errors: on a synthetic rig of known truth the estimated angles left a few "
@@ -251,8 +278,11 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     document["accepted"] = bool(accept) and not verdict["trusted"]
     figures_of = [(e, result.simulated[e.name]) for e in result.spec.experiments + result.spec.validation]
     document["figures"] = [f"{e.name}-{kind}.png" for e, _ in figures_of for kind in ("overlay", "residuals")]
-    if profiles:
+    profiled = any("profile" in p for p in document["parameters"].values())
+    if profiled:
         document["figures"].append("profiles.png")
+    if skipped:
+        document["profiles_skipped"] = skipped
     document["files"] = sorted(["plant.yaml", "fit.json", "report.html"] + document["figures"]
                                + [str(Path(p).with_suffix(".svg")) for p in document["figures"]])
     # the fit first, so that a full disk or a kill while drawing keeps it
@@ -265,7 +295,7 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     (out / CHECKPOINT).unlink(missing_ok=True)
     for experiment, pair in figures_of:
         _figures(out, experiment, {"start": pair["start"], "fitted": pair["fit"]})
-    if profiles:
+    if profiled:
         from furuta_cosim.report.rig import plot_profiles
 
         plot_profiles(document["parameters"], out / "profiles")
@@ -290,8 +320,12 @@ def _with_profiles(document: dict, found: dict) -> None:
         entry = document["parameters"][name]
         entry["profile"] = {k: profile[k] for k in ("values", "rise", "threshold", "simulations")}
         entry["interval_profile"] = profile["interval"]
+        if profile["verdict"] == "not profiled":   # its sandwich interval says it (identify/verdict.py)
+            entry["profile_why"] = profile.get("why", "")
+            continue
         entry["verdict"] = profile["verdict"] + (f": {profile['why']}" if profile.get("why") else "")
         entry["identifiable"] = profile["verdict"] == "identifiable"
+        entry["rests_on"] = "its profile"
     document["interval_profile_method"] = (
         "profile likelihood: the cost with the parameter held and every other unknown fitted again; "
         "95 % where it rises less than chi2(1, 0.95) / 2 times the residual variance, scaled by the "
@@ -369,7 +403,8 @@ def _claim(out: Path, spec, identity: dict, resume: bool) -> dict | None:
                      "optima": [{"x": [float(v) for v in o["x"]], "cost": float(o["cost"]),
                                  "message": str(o.get("message", "")), "record": list(o["record"])}
                                 for o in saved.get("optima", [])],
-                     "profiles": _profiles_read(saved.get("profiles"))}
+                     "profiles": _profiles_read(saved.get("profiles")),
+                     "precheck": saved.get("precheck") if isinstance(saved.get("precheck"), dict) else None}
         except (KeyError, TypeError, ValueError):
             raise ConfigError([f"resume: {out / CHECKPOINT}: damaged (stage, x, record, "
                                "simulations expected)"]) from None

@@ -1,13 +1,32 @@
 """Whether a fit can be trusted, judged before its plant file is written.
 
-A fit is trusted when it reproduces its data and says something physical:
+A fit is trusted when it reproduces its data, is better than where it started and says
+something physical:
 
 - every output of every fitted and held-out log replays within ``tolerance`` noise floors
   RMS (the floor: the encoder's quantum for an angle that states one, else the stated or
   estimated noise's standard deviation);
+- no output of a fitted or held-out log replays worse than at the start values (by more than
+  :data:`WORSE`, 5 %, and more than :data:`WORSE_FLOORS`, half its noise floor): a
+  fit that trades one output for another, or follows a wrong start state away from the
+  plant, is not a better plant whatever the tolerance (a fit that replays at 19.7 floors
+  where the start values replayed at 7 passes the tolerance alone); an output already at its
+  noise may move within it;
 - the fit ran to its end (not stopped by its spec's ``max_simulations``);
 - no 95 % interval of a plant parameter reaches across a strict physical bound (a
   resistance or an inertia at or below 0): the data do not tell that parameter.
+
+A reason is first what points at its cause: in a fit that is not trusted, an output whose
+replay at the start values was already hundreds of noise floors off (identify/precheck.py FAR)
+and whose column, read in another unit, with its sign flipped or a turn away, would replay far
+better, is that column to check before anything about the fit; one far off without such a
+reading comes last (a fit that starts that far and ends within the tolerance is fine: a start
+30 % off moves an arm by radians over seconds).
+
+Each parameter's own verdict says what it rests on (``rests_on``): its profile (identify/
+profile.py), or, not profiled, its sandwich interval, which calls it identifiable only when
+the interval stays inside the fit's bounds and its physical range and, for a plant parameter,
+does not reach 0.
 
 ``identify`` prints the verdict's one line last, exits non-zero when the fit is not trusted
 and then writes its plant file with a ``rejected`` key that every ``--plant`` refuses;
@@ -19,6 +38,8 @@ from __future__ import annotations
 import math
 
 TOLERANCE = 20.0   # noise floors (quanta, or noise standard deviations) of replay RMS, at most
+WORSE = 0.05       # an output replaying this fraction worse than at the start values is not a better fit
+WORSE_FLOORS = 0.5   # ... and by this many noise floors (within the encoder's resolution, outputs trade freely)
 
 _UNITS = {"theta0": "rad", "theta1": "rad", "i": "A", "dtheta0": "rad/s", "dtheta1": "rad/s"}
 
@@ -27,6 +48,10 @@ def floor_of(comparison: dict) -> tuple[float, str]:
     """(the noise floor, what it is) of one output's comparison (identify/replay.py compare)."""
     if comparison.get("quantum"):
         return float(comparison["quantum"]), "the encoder's quantum"
+    if comparison.get("chatter"):   # identify/replay.py chatter: a loop closed on counts
+        return (math.hypot(float(comparison["sigma"]), float(comparison["chatter"])),
+                f"the stated noise and the command's chatter that the encoders' rounding drives "
+                f"({comparison['chatter']:.3g} RMS between two replays half a count apart)")
     where = comparison.get("sigma_from", "")
     return float(comparison["sigma"]), ("the noise estimated from the data" if where == "estimated"
                                         else "the stated noise")
@@ -43,19 +68,31 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
                 floor, what = floor_of(c)
                 ratio = c["rms"] / floor if floor > 0 else math.inf
                 outputs.setdefault(name, {})[output] = {"rms": c["rms"], "floor": floor, "floors": ratio}
+                held = " (held out)" if kind == "validation" else ""
+                unit = _UNITS.get(output, "")
                 if not ratio <= tolerance:
-                    held = " (held out)" if kind == "validation" else ""
-                    unit = _UNITS.get(output, "")
                     reasons.append(
                         f"{name}{held} {output}: replay RMS {c['rms']:.4g} {unit} is {ratio:.3g} times its "
                         f"noise floor ({floor:.3g} {unit}, {what}); at most {tolerance:g} is accepted".replace("  ", " "))
+    reasons += _worse(document)
+    if reasons:  # a column that reads far better another way is the first thing to check
+        from furuta_cosim.identify.fit import far_line
+        from furuta_cosim.identify.precheck import loop_line
+
+        far = (document.get("precheck") or {}).get("far") or []
+        reasons[:0] = [loop_line(e) for e in far if e.get("loop")] + [
+            far_line(e) for e in far if e.get("hint") and not e.get("loop")]
+        reasons += [far_line(e) + ": check the unit, offset and sign of its column, and whether it "
+                    "replays as the rig ran (its loop)" for e in far if not e.get("hint")]
     message = document.get("message", "")
     if message.startswith("stopped"):
         reasons.append(f"the fit {message}: it had not converged (raise max_simulations in the spec, "
                        "or start nearer)")
     for name, p in document["parameters"].items():
-        if "." in name or not p.get("identifiable", True) or p.get("interval") is None:
+        if "." in name or p.get("interval") is None:
             continue
+        if p.get("rests_on") == "its profile" and not p.get("identifiable"):
+            continue   # the profile's verdict says it; tune --from-fit holds it
         low, _, strict = ranges.get(name, (None, None, False))
         lo, hi = p["interval"]
         if low is None or lo is None:
@@ -71,9 +108,74 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
             "outputs": outputs, "next": step}
 
 
+def _worse(document: dict) -> list[str]:
+    """A reason per output of a log that replays worse than at the start values (module
+    docstring); the segments of a log fitted by multiple shooting (``log@k``) as one log: each
+    segment trades with the others, the log as a whole must not be worse."""
+    whole: dict = {}
+    samples = {name: d.get("samples", 1) for name, d in document.get("data", {}).items()}
+    for kind in ("experiments", "validation"):
+        for name, found in document[kind].items():
+            log = name.split("@")[0] if "@" in name else name
+            for output, c in found.items():
+                start = document.get("at_start", {}).get(name, {}).get(output, {}).get("rms")
+                if start is None:
+                    continue
+                n = samples.get(name, 1)
+                entry = whole.setdefault((log, kind, output), {"n": 0, "fit": 0.0, "start": 0.0, "c": c})
+                entry["n"] += n
+                entry["fit"] += n * c["rms"] ** 2
+                entry["start"] += n * start ** 2
+    reasons = []
+    for (log, kind, output), e in whole.items():
+        fit, start = math.sqrt(e["fit"] / e["n"]), math.sqrt(e["start"] / e["n"])
+        floor, _ = floor_of(e["c"])
+        if not fit <= max((1.0 + WORSE) * start, start + WORSE_FLOORS * floor):
+            held = " (held out)" if kind == "validation" else ""
+            unit = _UNITS.get(output, "")
+            reasons.append(f"{log}{held} {output}: replays worse than at the start values (RMS {start:.4g} -> "
+                           f"{fit:.4g} {unit}, {100 * (fit / start - 1):+.0f} %, {(fit - start) / floor:+.2g} noise "
+                           "floors): the fit is not a better plant".replace("  ", " ").replace(" ,", ","))
+    return reasons
+
+
+def read_intervals(document: dict, ranges: dict, why: str = "not profiled") -> None:
+    """The verdict of each parameter fit.json holds no profile for, from its sandwich interval
+    (in place): ``identifiable`` only when the interval stays inside the fit's bounds and the
+    physical range and, for a plant parameter, does not reach 0; ``why`` says why it rests on
+    the sandwich (not profiled, the fit did not converge)."""
+    for name, p in document["parameters"].items():
+        if p.get("rests_on") == "its profile" or p.get("interval") is None:
+            continue
+        lo, hi = p["interval"]
+        bound_lo, bound_hi = p["bounds"]
+        low, high, strict = ranges.get(name, (None, None, False)) if "." not in name else (None, None, False)
+        wrong = []
+        if "." not in name and lo <= 0.0 <= hi:
+            wrong.append("reaches 0")
+        elif low is not None and (lo <= low if strict else lo < low):
+            wrong.append(f"reaches {low:g}, where no {name} is")
+        if lo <= bound_lo or hi >= bound_hi:
+            wrong.append(f"reaches the fit's bound{'s' if lo <= bound_lo and hi >= bound_hi else ''} "
+                         f"({bound_lo:g}, {bound_hi:g})")
+        if high is not None and hi > high:
+            wrong.append(f"reaches above {high:g}")
+        p["identifiable"] = not wrong
+        p["rests_on"] = f"its sandwich interval ({why})"
+        p["verdict"] = (f"identifiable by its sandwich interval ({why})" if not wrong else
+                        f"practically not identifiable: its sandwich interval [{lo:.4g}, {hi:.4g}] "
+                        f"{' and '.join(wrong)} ({why})")
+
+
 def _next_step(reasons: list[str], document: dict) -> str:
     if not reasons:
         return ""
+    if any("check the unit, offset and sign of that column" in r for r in reasons):
+        return ("read that column as named (its unit:, the sign, or its offset:) and fit again; the plant's "
+                "own units are rad, rad/s, A and V, the pendulum 0 upright")
+    if any("worse than at the start" in r for r in reasons) and not any("replay RMS" in r for r in reasons):
+        return ("check each log's start state (a window cut mid-motion needs its rates and current: "
+                "start: data) and the loop; or hold the parameters the data cannot tell")
     if any("replay RMS" in r for r in reasons):
         closed = document.get("loops", {})
         if any(v == "open" for v in closed.values()) or not closed:

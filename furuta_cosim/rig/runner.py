@@ -335,6 +335,9 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
         "inputs": {"V": {"column": "V", "unit": "V"}},
         "outputs": {"theta0": {"column": "theta0", "unit": "rad", "quantum": 2 * math.pi / counts},
                     "theta1": {"column": "theta1", "unit": "rad", "quantum": 2 * math.pi / counts}},
+        # the run starts at rest: its rates and current are 0 at t = 0, exactly (a window cut
+        # from it later must say its own start: identify/experiment.py refuses these where
+        # the data contradict them)
         "start": {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
         "rig": {"board": board.name, "controller": kept or name, "period": period, "status": status},
     }
