@@ -22,6 +22,8 @@ stopped, the loop's timing, peaks, the swing-up's catch), and for the virtual bo
 
 from __future__ import annotations
 
+import sys
+
 import json
 import math
 import time
@@ -130,26 +132,38 @@ def home(board: Board, plant, output: str | Path, *, timeout: float = 20.0, peri
 
 
 class _AtSamples:
-    """Ctrl-C and SIGTERM held until the next sample starts (in the main thread): raised
-    inside a board's call (the virtual board steps its plant in this process) they could leave
-    it between two states; raised at a sample's start the runner stops as it always does."""
+    """Ctrl-C, SIGTERM and SIGHUP (the terminal closed) held until the next sample starts (in
+    the main thread): raised inside a board's call (the virtual board steps its plant in this
+    process) they could leave it between two states; raised at a sample's start the runner
+    stops as it always does. Once the loop has ended (:meth:`closing`) every further signal
+    is held until the rig is safe and the log, summary and experiment file are written: a
+    second Ctrl-C then loses nothing (it used to kill the write and leave the folder empty)."""
 
     def __init__(self):
         import signal
         import threading
 
-        self.pending, self.previous = None, {}
+        self.pending, self.previous, self.closed = None, {}, False
         if threading.current_thread() is not threading.main_thread():
             return
-        for number in (signal.SIGINT, signal.SIGTERM):
+        for number in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+            if number is None:
+                continue
             self.previous[number] = signal.getsignal(number)
             signal.signal(number, self._hold)
 
     def _hold(self, number, _frame) -> None:
+        if self.closed:   # the rig is being made safe and the run written: nothing interrupts that
+            self.pending = self.pending or number
+            return
         if self.pending is not None:  # a second one: a board's call hangs; stop now
             self.pending = number
             self.deliver()
         self.pending = number
+
+    def closing(self) -> None:
+        """From here on signals wait for :meth:`restore` (the loop has ended)."""
+        self.closed = True
 
     def deliver(self) -> None:
         import signal
@@ -157,6 +171,8 @@ class _AtSamples:
         if self.pending is None:
             return
         number, self.pending = self.pending, None
+        if number == getattr(signal, "SIGHUP", None):   # the terminal closed: as SIGTERM
+            number = signal.SIGTERM
         handler = self.previous.get(number)
         if handler is signal.SIG_IGN:
             return
@@ -165,10 +181,16 @@ class _AtSamples:
         raise KeyboardInterrupt()   # the default handler: stop as for Ctrl-C
 
     def restore(self) -> None:
+        """The handlers as they were; a signal held while closing is dropped when the run
+        already stops for one, else delivered now."""
         import signal
 
         for number, handler in self.previous.items():
             signal.signal(number, handler)
+        pending, self.pending = self.pending, None
+        if pending is not None and self.previous and sys.exc_info()[0] is None:
+            self.pending = pending
+            self.deliver()
         self.previous = {}
 
 
@@ -304,16 +326,19 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         reason = f"{type(error).__name__}: {error}"
         raise
     finally:
-        signals.restore()
-        failed = board.safe()
+        signals.closing()   # a second Ctrl-C (or SIGTERM, SIGHUP) now waits until all is written
         try:
-            board.close()
-        except Exception as error:  # noqa: BLE001 - the rig is safe; the log is what matters now
-            failed.append(f"close: {type(error).__name__}: {error}")
-        summary = _write(out, rows[:done], cfile, board, plant, period, status, code, reason, failed,
-                         started_wall, runtime, limits, scenario, rate_filter)
-        log(f"{'stopped' if code else 'done'}: {reason}; the rig is at 0 V with the amplifier "
-            f"{'off' if not failed else 'in an unknown state: ' + '; '.join(failed)}")
+            failed = board.safe()
+            try:
+                board.close()
+            except Exception as error:  # noqa: BLE001 - the rig is safe; the log is what matters now
+                failed.append(f"close: {type(error).__name__}: {error}")
+            summary = _write(out, rows[:done], cfile, board, plant, period, status, code, reason, failed,
+                             started_wall, runtime, limits, scenario, rate_filter)
+            log(f"{'stopped' if code else 'done'}: {reason}; the rig is at 0 V with the amplifier "
+                f"{'off' if not failed else 'in an unknown state: ' + '; '.join(failed)}")
+        finally:
+            signals.restore()
     return summary
 
 

@@ -1,0 +1,47 @@
+"""A rig run stopped by signals keeps its run: a second Ctrl-C, two SIGTERMs or a closed
+terminal (SIGHUP) while the rig is made safe and the log written no longer lose the log,
+the summary and the experiment file (they used to leave the run folder empty)."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+
+def _started(folder):
+    """A long swing-up on the virtual board as a user starts it, once its loop runs."""
+    process = subprocess.Popen([sys.executable, "-m", "furuta_cosim.cli", "rig", "run", "swingup-qube",
+                                "--board", "virtual:fast", "--duration", "200", "-o", str(folder)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not folder.is_dir() and time.monotonic() < deadline:  # the folder exists once the board is open
+        time.sleep(0.05)
+    time.sleep(1.0)
+    return process
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signals, pause, code", [
+    (("SIGINT", "SIGINT"), 0.3, 130),
+    (("SIGTERM", "SIGTERM"), 0.05, 143),
+    (("SIGINT",) * 10, 0.0, 130),
+    (("SIGHUP",), 0.0, 143),
+])
+def test_signals_during_a_rig_run_lose_nothing(tmp_path, signals, pause, code):
+    folder = tmp_path / "run"
+    process = _started(folder)
+    for name in signals:
+        process.send_signal(getattr(signal, name))
+        time.sleep(pause)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == code, err
+    names = sorted(p.name for p in folder.iterdir())
+    assert {"log.csv", "summary.json", "experiment.yaml", "summary.md"} <= set(names), (names, err)
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["status"] in ("interrupted", "terminated")
+    rows = (folder / "log.csv").read_text().splitlines()
+    assert len(rows) > 100  # the samples before the signal, every one
+    assert not [n for n in names if n.endswith(".partial") or n.startswith(".")]
