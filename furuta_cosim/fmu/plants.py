@@ -195,7 +195,8 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         for key, value in (section or {}).items():
             if key in SENSORS:
                 low, high, _ = SENSORS[key]
-                number = check.number(value, f"sensors.{key}", minimum=low, maximum=high)
+                number = check.number(value, f"sensors.{key}", minimum=low, maximum=high,
+                                      integer=key == "encoder_counts")
                 if number is not None and key.endswith("_sign") and number not in (1.0, -1.0):
                     check.fail(f"sensors.{key}", f"expected 1 or -1, got {number:g}")
                 elif number is not None:

@@ -251,6 +251,17 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     if out.is_dir() and any(out.iterdir()):
         raise ConfigError([f"output {out}: holds files already; a rig run takes a new or empty folder"])
     cfile, runtime, times, reference, period = controller_for(controller, scenario=scenario)
+    # what simulate refuses, refused before the board is opened: a period the plant file's
+    # model does not integrate, a run shorter than one sample
+    low, high = getattr(plant, "control_period", (None, None))
+    if high is not None and period > high * (1 + 1e-9):
+        raise ConfigError([f"{plant.path}: limits.control_period.max: {high:g} s, but the controller runs every "
+                           f"{period:g} s (raise the plant's n_substeps and its max, or run a faster controller)"])
+    if low is not None and period < low * (1 - 1e-9):
+        raise ConfigError([f"{plant.path}: limits.control_period.min: {low:g} s, but the controller runs every "
+                           f"{period:g} s"])
+    if times is None and duration < period:
+        raise ConfigError([f"duration: {duration:g} s is shorter than one sample of the controller ({period:g} s)"])
     steps = int(round(duration / period)) if times is None else len(times)
     reference = np.zeros(steps) if reference is None else np.asarray(reference, dtype=float)
     limits = limits or Limits.of(plant)
