@@ -45,7 +45,8 @@ class Metric:
     :class:`Sum` or :class:`Peak`, whose running form early stopping uses. ``rtol``/``atol``:
     the least regression tolerance it needs (a scenario's ``regression`` may widen it).
     ``shown``: simulate's table shows it. ``cost``: a larger value is worse (the tuning
-    summary flags a tuned controller worse than its baseline on it).
+    summary flags a tuned controller worse than its baseline on it). ``lower``: the least value
+    it can take (0 for a norm, a sum of non-negative terms, a time), None when any.
     """
 
     name: ClassVar[str] = ""
@@ -56,6 +57,9 @@ class Metric:
     atol: ClassVar[float] = 0.0
     shown: ClassVar[bool] = False
     cost: ClassVar[bool] = False
+    # the least value it can take (a norm, a time: 0), None when any: a value sent back by a
+    # rig below it is not a measurement (tuning/trials.py refuses it)
+    lower: ClassVar[float | None] = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -76,6 +80,7 @@ METRICS: dict[tuple[str, str], Metric] = {}
 
 
 class Sum(Metric):
+    lower = 0.0
     """A sum of non-negative terms times dt: it only grows, and its running value is the
     same terms over the samples run so far."""
 
@@ -93,6 +98,7 @@ class Sum(Metric):
 
 
 class Peak(Metric):
+    lower = 0.0
     """The largest magnitude: it only grows. A sample that is not a number is left to the
     run's own check of its outputs (a failure, not a bound)."""
 
@@ -118,20 +124,20 @@ class _StepInfo(Metric):
         raise TypeError("step metrics are computed together: step_metrics")
 
 
-def _step(name: str, description: str, shown: bool = False, cost: bool = False):
+def _step(name: str, description: str, shown: bool = False, cost: bool = False, lower: float | None = None):
     return type(name, (_StepInfo,), {"name": name, "description": description, "shown": shown,
-                                     "cost": cost, "__module__": __name__})
+                                     "cost": cost, "lower": lower, "__module__": __name__})
 
 
-_step("RiseTime", "time from 10 % to 90 % of the change (s)", shown=True, cost=True)
+_step("RiseTime", "time from 10 % to 90 % of the change (s)", shown=True, cost=True, lower=0.0)
 _step("SettlingTime", "time after which it stays within 2 % of the change around its final value (s)",
-      shown=True, cost=True)
+      shown=True, cost=True, lower=0.0)
 _step("SettlingMin", "its least value once risen")
 _step("SettlingMax", "its greatest value once risen")
-_step("Overshoot", "how far past the final value, in % of the change", shown=True, cost=True)
-_step("Undershoot", "how far the wrong way first, in % of the change", cost=True)
+_step("Overshoot", "how far past the final value, in % of the change", shown=True, cost=True, lower=0.0)
+_step("Undershoot", "how far the wrong way first, in % of the change", cost=True, lower=0.0)
 _step("Peak", "its extreme in the direction of the change (a step down peaks at its lowest)", shown=True)
-_step("PeakTime", "when it peaked (s)")
+_step("PeakTime", "when it peaked (s)", lower=0.0)
 _step("SteadyStateValue", "its final value")
 
 
@@ -160,7 +166,7 @@ class ITAE(Sum):
 
 
 class ErrorRMS(Metric):
-    name, of, shown, cost = "RMS", "error", True, True
+    name, of, shown, cost, lower = "RMS", "error", True, True, 0.0
     description = "root mean square of e (over the scenario's error window when it has one)"
 
     def value(self, s):
@@ -174,7 +180,7 @@ class InputPeak(Peak):
 
 
 class InputRMS(Metric):
-    name, of, shown, cost = "rms", "input", True, True
+    name, of, shown, cost, lower = "rms", "input", True, True, 0.0
     description = "root mean square of u"
 
     def value(self, s):
@@ -195,7 +201,7 @@ class MaxAbs(Peak):
 
 
 class RegulationSettling(Metric):
-    name, of, shown, cost = "SettlingTime", "regulated", True, True
+    name, of, shown, cost, lower = "SettlingTime", "regulated", True, True, 0.0
     description = ("time after which an output that starts away from 0 stays within 2 % of its "
                    "initial offset around 0 (s): \"the pendulum is back\"")
 
@@ -204,12 +210,20 @@ class RegulationSettling(Metric):
 
 
 class WrappedSettling(Metric):
-    name, of, cost = "WrappedSettlingTime", "wrapped", True
+    name, of, cost, lower = "WrappedSettlingTime", "wrapped", True, 0.0
     description = ("the same of an angle (rad) started more than pi/2 from 0, wrapped to (-pi, pi]: "
                    "upright whichever way round it swung up (s)")
 
     def value(self, s):
         return regulation_settling(s.t, _wrapped(s.x))
+
+
+def lower_bound(key: str) -> float | None:
+    """The least value of the metric ``key`` (``SIGNAL.NAME``, as results name them): the
+    largest ``lower`` of the metrics of that name, None when none states one."""
+    name = key.rsplit(".", 1)[-1]
+    bounds = [m.lower for (_, n), m in METRICS.items() if n == name and m.lower is not None]
+    return max(bounds) if bounds else None
 
 
 def metrics_of(group: str, shown: bool = False) -> tuple[str, ...]:

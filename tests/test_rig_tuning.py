@@ -292,6 +292,11 @@ METRICS = {"u.rms": 0.5, "u.peak_abs": 1.0, "error.IAE": 0.4, "theta1.max_abs": 
     ('{"status": "finished", "scenarios": {"qube-step": {"experiment": "no-input.yaml"}}}', "inputs: needs V"),
     ('{"status": "finished", "scenarios": {"qube-step": {"experiment": "nan.yaml"}}}', "nan.csv"),
     ('{"status": "finished", "scenarios": {"qube-step": {"what": 1}}}', 'expected {"experiment": FILE}'),
+    # a norm below 0 is no measurement: it made a feasible best of objective -78.8
+    ('{"status": "finished", "scenarios": {"qube-step": {"metrics": {"u.rms": -50, "u.peak_abs": 1, '
+     '"error.IAE": -1, "theta1.max_abs": 0.1}}}}', "u.rms: -50 is below 0, the least rms can be"),
+    ('{"status": "failed", "status": "finished"}', "the key 'status' is given twice"),
+    ("[" * 100_000 + "]" * 100_000, "nested deeper than 32 levels"),
 ])
 def test_an_external_rigs_result_is_read_as_hostile(tmp_path, result, expected):
     request, scenarios = _external_request(tmp_path)
@@ -372,3 +377,15 @@ def test_a_rig_without_a_reset_file_is_refused_before_anything_is_written(tmp_pa
     with pytest.raises(ConfigError, match="rig.reset: missing"):
         tune_on_rig(load_spec(path), tmp_path / "run", _trials())
     assert not (tmp_path / "run").exists()
+
+
+def test_a_result_there_before_its_request_is_not_taken(tmp_path):
+    """Planted before the request was written, it was taken as that trial's result."""
+    request, scenarios = _external_request(tmp_path)
+    exchange = request.parent
+    (request / "result.json").write_text('{"status": "finished"}')
+    trials = ExternalTrials(exchange, metrics=sorted(METRICS), wait=0.2, poll=0.05)
+    with pytest.raises(ConfigError) as caught:
+        trials.run(tmp_path / "run" / "0001", "0001", scenarios)
+    assert "there before its request was written" in str(caught.value)
+    assert not (exchange / "0001" / "request.json").exists()

@@ -20,6 +20,7 @@ sizes are bounded, every number must be finite.
 from __future__ import annotations
 
 import json
+import os
 import math
 import shutil
 import time
@@ -220,6 +221,9 @@ class ExternalTrials:
         request = make_folder(self.folder / name)
         result = request / "result.json"
         if not (request / "request.json").is_file():
+            if os.path.lexists(result):  # there before its request: not this trial's result
+                raise ConfigError([f"{result}: there before its request was written: remove it (a result "
+                                   "is read only after its request)"])
             self._write_request(request, name, scenarios)
             log(f"trial {name}: request written to {request}; waiting for {result.name}")
         else:
@@ -274,9 +278,15 @@ def read_result(request: Path, scenarios: list[TrialScenario], metrics) -> dict:
         raise ConfigError([f"{where}: not a plain file"])
     if path.stat().st_size > MAX_RESULT_BYTES:
         raise ConfigError([f"{where}: larger than {MAX_RESULT_BYTES} bytes"])
+    request_file = request / "request.json"
+    if request_file.is_file() and path.stat().st_mtime < request_file.stat().st_mtime - 1.0:
+        raise ConfigError([f"{where}: older than its request ({request_file.name}): not this trial's result"])
+    text = path.read_text(encoding="utf-8", errors="strict")
+    if _depth(text) > MAX_NESTING:
+        raise ConfigError([f"{where}: nested deeper than {MAX_NESTING} levels"])
     try:
-        document = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
-    except (ValueError, UnicodeDecodeError) as error:
+        document = json.loads(text, parse_constant=_no_constant, object_pairs_hook=_no_duplicates)
+    except (ValueError, UnicodeDecodeError, RecursionError) as error:
         raise ConfigError([f"{where}: not JSON ({error})"]) from None
     if not isinstance(document, dict):
         raise ConfigError([f"{where}: expected an object"])
@@ -317,9 +327,15 @@ def read_result(request: Path, scenarios: list[TrialScenario], metrics) -> dict:
             if missing:
                 raise ConfigError([f"{key}.metrics: missing {', '.join(missing)} (request.json names "
                                    "the metrics to send)"])
+            from furuta_cosim.metrics import lower_bound
+
             for metric, value in values.items():
                 if not _finite(value):
                     raise ConfigError([f"{key}.metrics.{metric}: expected a finite number, got {value!r}"])
+                least = lower_bound(str(metric))
+                if least is not None and value < least:
+                    raise ConfigError([f"{key}.metrics.{metric}: {value!r} is below {least:g}, the least "
+                                       f"{str(metric).rsplit('.', 1)[-1]} can be: not a measurement"])
             found[label] = {m: float(v) for m, v in values.items()}
             continue
         experiment, data = _inside(request, entry["experiment"], f"{key}.experiment")
@@ -386,6 +402,44 @@ def trace_of(path: Path, prepared, key: str):
 
 def _finite(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+MAX_NESTING = 32   # levels of brackets a result.json may nest
+
+
+def _depth(text: str) -> int:
+    """The deepest nesting of brackets in JSON ``text`` (strings skipped), without parsing it:
+    100,000 nested brackets made the parser recurse past Python's limit."""
+    depth = deepest = 0
+    inside = escaped = False
+    for c in text:
+        if inside:
+            if escaped:
+                escaped = False
+            elif c == "\\":
+                escaped = True
+            elif c == '"':
+                inside = False
+        elif c == '"':
+            inside = True
+        elif c in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+            if deepest > MAX_NESTING:
+                return deepest
+        elif c in "]}":
+            depth -= 1
+    return deepest
+
+
+def _no_duplicates(pairs):
+    """A JSON object whose keys are each given once (of two ``status`` keys the last won)."""
+    found = {}
+    for key, value in pairs:
+        if key in found:
+            raise ValueError(f"the key {key!r} is given twice")
+        found[key] = value
+    return found
 
 
 def _no_constant(name: str):
