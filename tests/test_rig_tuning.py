@@ -297,6 +297,8 @@ METRICS = {"u.rms": 0.5, "u.peak_abs": 1.0, "error.IAE": 0.4, "theta1.max_abs": 
      '"error.IAE": -1, "theta1.max_abs": 0.1}}}}', "u.rms: -50 is below 0, the least rms can be"),
     ('{"status": "failed", "status": "finished"}', "the key 'status' is given twice"),
     ("[" * 100_000 + "]" * 100_000, "nested deeper than 32 levels"),
+    ('{"status": "finished", "scenarios": {"qube-step": {"experiment": "outside.yaml"}}}',
+     "its loop.controller"),
 ])
 def test_an_external_rigs_result_is_read_as_hostile(tmp_path, result, expected):
     request, scenarios = _external_request(tmp_path)
@@ -305,6 +307,11 @@ def test_an_external_rigs_result_is_read_as_hostile(tmp_path, result, expected):
     _experiment(request, "slow", period=0.004)
     _experiment(request, "no-input", inputs=False)
     _experiment(request, "nan", value="nan")
+    _experiment(request, "outside")   # its loop names a controller outside the request
+    outside = yaml.safe_load((request / "outside.yaml").read_text())
+    (tmp_path / "exchange" / "ctrl.yaml").write_text((ROOT / "scenarios" / "controllers" / "lqr-qube.yaml").read_text())
+    outside["loop"] = {"controller": str(tmp_path / "exchange" / "ctrl.yaml")}
+    (request / "outside.yaml").write_text(yaml.safe_dump(outside))
     (request / "result.json").write_text(result)
     with pytest.raises(ConfigError) as caught:
         read_result(request, scenarios, sorted(METRICS))
@@ -389,3 +396,17 @@ def test_a_result_there_before_its_request_is_not_taken(tmp_path):
         trials.run(tmp_path / "run" / "0001", "0001", scenarios)
     assert "there before its request was written" in str(caught.value)
     assert not (exchange / "0001" / "request.json").exists()
+
+
+def test_a_request_folder_that_is_a_link_is_not_written_through(tmp_path):
+    """A planted link NNNN -> a user's folder had the user's candidate.yaml overwritten."""
+    request, scenarios = _external_request(tmp_path)
+    users = tmp_path / "users"
+    users.mkdir()
+    (users / "candidate.yaml").write_text("mine\n")
+    request.rmdir()
+    request.symlink_to(users, target_is_directory=True)
+    trials = ExternalTrials(request.parent, metrics=sorted(METRICS), wait=0.2, poll=0.05)
+    with pytest.raises(ConfigError):
+        trials.run(tmp_path / "run" / "0001", "0001", scenarios)
+    assert (users / "candidate.yaml").read_text() == "mine\n" and sorted(p.name for p in users.iterdir()) == ["candidate.yaml"]

@@ -32,6 +32,7 @@ UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi, "rad/s": 1.0,
          "deg/s": math.pi / 180.0, "rpm": 2.0 * math.pi / 60.0, "A": 1.0, "mA": 1e-3, "V": 1.0,
          "s": 1.0, "ms": 1e-3}
 MAX_CSV_BYTES = 200_000_000
+MAX_CONTROLLER_BYTES = 10_000_000   # a loop's controller file (YAML of gains and matrices)
 # two successive sample times may differ from the mean period by this fraction (loggers print
 # rounded times); beyond it the log is refused: nothing here resamples
 UNIFORM_TOLERANCE = 0.01
@@ -249,6 +250,10 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
             controller = Path(text) if Path(text).is_absolute() else path.parent / text
             if not controller.is_file():
                 check.fail("loop.controller", f"{controller}: no such controller file")
+                controller = None
+            elif controller.stat().st_size > MAX_CONTROLLER_BYTES:   # read whole for its hash
+                check.fail("loop.controller", f"{controller}: larger than {MAX_CONTROLLER_BYTES // 1_000_000} MB: "
+                                              "not a controller file")
                 controller = None
             else:
                 digest = hashlib.sha256(controller.read_bytes()).hexdigest()

@@ -218,6 +218,9 @@ class ExternalTrials:
         ConfigError
             When the result cannot be read (module docstring).
         """
+        if (self.folder / name).is_symlink():  # written through, it overwrote a user's files
+            raise ConfigError([f"{self.folder / name}: a symbolic link, not a request folder of this tuning: "
+                               "remove it"])
         request = make_folder(self.folder / name)
         result = request / "result.json"
         if not (request / "request.json").is_file():
@@ -364,6 +367,9 @@ def _inside(request: Path, name, key: str) -> tuple[Path, Path]:
     data = Path(experiment.data)
     if data.is_symlink() or root not in data.resolve().parents:
         raise ConfigError([f"{key}: its data {data} is not a file inside {request}"])
+    controller = experiment.loop.controller if experiment.loop is not None else None
+    if controller is not None and (controller.is_symlink() or root not in controller.resolve().parents):
+        raise ConfigError([f"{key}: its loop.controller {controller} is not a file inside {request}"])
     return path, data
 
 
