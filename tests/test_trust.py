@@ -210,3 +210,28 @@ def test_a_swing_up_log_s_current_is_judged_against_what_its_replay_can_reproduc
     assert current["floors"] < 5 and current["rms"] > 5 * current["sigma"]
     for angle in ("theta0", "theta1"):
         assert "chatter" not in json.loads(out)["experiments"]["run"]["outputs"][angle]
+
+
+def test_a_friction_the_data_do_not_bound_is_a_reason_not_a_note():
+    """Tc0 3760 times the thesis value with [-200, 200] was trusted, its interval a note."""
+    document = {"experiments": {}, "validation": {}, "message": "",
+                "parameters": {"Tc0": {"value": 0.11, "start": 2.91e-5, "interval": [-200.0, 200.0]}}}
+    verdict = judge(document, {"Tc0": (0.0, None, False)})
+    assert not verdict["trusted"] and "these data do not tell it" in verdict["reasons"][0]
+    document["parameters"]["Tc0"].update(value=2.5e-5, interval=[-1e-5, 6e-5])   # near 0: a note
+    verdict = judge(document, {"Tc0": (0.0, None, False)})
+    assert verdict["trusted"] and "consistent with no Tc0" in verdict["notes"][0]
+
+
+def test_an_angle_s_quantum_beyond_a_16th_of_a_turn_is_refused(logs, tmp_path):
+    path = tmp_path / _experiment(logs["fitted"], tmp_path, "coarse",
+                                  lambda d: d["outputs"]["theta0"].update(unit="deg", quantum=1000))
+    with pytest.raises(ConfigError) as caught:
+        load_experiment(path)
+    assert "outputs.theta0.quantum: 1000 deg is more than a 16th of a turn" in str(caught.value)
+
+
+def test_an_experiment_s_parameter_outside_its_physical_range_names_file_and_key(logs, tmp_path, capsys):
+    spec = _spec(tmp_path, logs, lambda d: d.update(parameters={"R_a": -3.0}))
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--workers", "1")
+    assert code == 2 and "fitted.yaml: parameters.R_a: R_a must be > 0" in err, err

@@ -32,6 +32,7 @@ UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi, "rad/s": 1.0,
          "deg/s": math.pi / 180.0, "rpm": 2.0 * math.pi / 60.0, "A": 1.0, "mA": 1e-3, "V": 1.0,
          "s": 1.0, "ms": 1e-3}
 MAX_CSV_BYTES = 200_000_000
+MAX_QUANTUM = 2 * math.pi / 16      # rad: an angle's quantum at most (16 counts a turn)
 MAX_CONTROLLER_BYTES = 10_000_000   # a loop's controller file (YAML of gains and matrices)
 # two successive sample times may differ from the mean period by this fraction (loggers print
 # rounded times); beyond it the log is refused: nothing here resamples
@@ -564,6 +565,11 @@ def _outputs(check: Checker, value, table, columns, keep) -> dict[str, Measured]
         values, factor, raw = signal
         quantum = check.number(raw.get("quantum", 0.0), f"{key}.quantum", minimum=0.0,
                                maximum=MAX_MAGNITUDE / factor)
+        if quantum is not None and raw.get("unit") in ("rad", "deg", "rev") and quantum * factor > MAX_QUANTUM:
+            # a quantum of 1000 deg made a 180 deg offset 0.18 noise floors
+            check.fail(f"{key}.quantum", f"{quantum:g} {raw['unit']} is more than a 16th of a turn: an encoder "
+                                         "counts finer (give its resolution in the column's unit)")
+            quantum = None
         noise = check.number(raw.get("noise", 0.0), f"{key}.noise", minimum=0.0,
                              maximum=MAX_MAGNITUDE / factor)
         if quantum is None or noise is None:

@@ -751,6 +751,12 @@ def check_ranges(spec: IdentifySpec, target: Target) -> None:
     the fit, and variants drawn from it later, would run a plant that does not exist."""
     ranges = physical_ranges(target)
     problems = []
+    for experiment in list(spec.experiments) + list(spec.validation):   # what a log sets for itself
+        for name, value in experiment.parameters.items():
+            why = outside(float(value), ranges[name]) if name in ranges else None
+            if why:
+                problems.append(f"{experiment.path}: parameters.{name}: {name} {why} (its physical range), "
+                                f"got {float(value):g}")
     for p in spec.free:
         rng = ranges.get(p.name)
         if rng is None:

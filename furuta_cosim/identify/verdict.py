@@ -14,7 +14,9 @@ something physical:
   noise may move within it;
 - the fit ran to its end (not stopped by its spec's ``max_simulations``);
 - no 95 % interval of a plant parameter reaches across a strict physical bound (a
-  resistance or an inertia at or below 0): the data do not tell that parameter.
+  resistance or an inertia at or below 0): the data do not tell that parameter; nor, for a
+  parameter that may be 0 (a friction), reaches both below 0 and above :data:`FAR_ABOVE` times
+  its start (a Tc0 3760 times the thesis value with [-200, 200] was trusted by a note).
 
 A reason is first what points at its cause: in a fit that is not trusted, an output whose
 replay at the start values was already hundreds of noise floors off (identify/precheck.py FAR)
@@ -39,6 +41,7 @@ import math
 
 TOLERANCE = 20.0   # noise floors (quanta, or noise standard deviations) of replay RMS, at most
 WORSE = 0.05       # an output replaying this fraction worse than at the start values is not a better fit
+FAR_ABOVE = 10.0     # a friction's interval below 0 and this many times its start above: not told
 WORSE_FLOORS = 0.5   # ... and by this many noise floors (within the encoder's resolution, outputs trade freely)
 
 _UNITS = {"theta0": "rad", "theta1": "rad", "i": "A", "dtheta0": "rad/s", "dtheta1": "rad/s"}
@@ -100,6 +103,10 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
         if strict and lo <= low:
             reasons.append(f"{name}: its 95 % interval [{lo:.4g}, {hi:.4g}] reaches {low:g} and below, "
                            f"where no {name} is: these data do not tell it")
+        elif not strict and lo < low and p.get("start") and hi > FAR_ABOVE * abs(p["start"]):
+            # below 0 and ten times its start's scale above: not a value the data tell
+            reasons.append(f"{name}: its 95 % interval [{lo:.4g}, {hi:.4g}] reaches below {low:g} and above "
+                           f"{FAR_ABOVE:g} times its start ({p['start']:.4g}): these data do not tell it")
         elif not strict and lo < low:
             notes.append(f"{name}: its 95 % interval [{lo:.4g}, {hi:.4g}] reaches below {low:g}: the data "
                          f"are consistent with no {name} at all")
