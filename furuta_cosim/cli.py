@@ -247,6 +247,7 @@ def _workers(args) -> int:
 
 
 def cmd_tune(args) -> int:
+    _check_seed(args.seed)
     import time
     from pathlib import Path
 
@@ -593,6 +594,7 @@ def cmd_design_experiment(args) -> int:
 
 
 def cmd_rig_run(args) -> int:
+    _check_seed(args.seed)
     from pathlib import Path
 
     from furuta_cosim.fmu.plants import load_plant
@@ -638,6 +640,7 @@ def cmd_rig_run(args) -> int:
 
 
 def cmd_rig_home(args) -> int:
+    _check_seed(args.seed)
     from pathlib import Path
 
     from furuta_cosim.fmu.plants import load_plant
@@ -772,7 +775,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variants-seed", type=int, help="with --from-fit: the seed of the variants' design (default 0)")
     p.add_argument("--resume", action="store_true", help="continue the run in -o after a crash")
     p.add_argument("--n-calls", type=int, help="evaluations (default: the spec's)")
-    p.add_argument("--seed", type=_seed, help="default: the spec's")
+    p.add_argument("--seed", type=int, help="default: the spec's")
     p.add_argument("--board", metavar="NAME[:OPTIONS]",
                    help="tune with the rig in the loop: each evaluation a trial on this board (virtual, "
                         "virtual:fast, quanser, ...; as for rig run); the method defaults to safe")
@@ -918,7 +921,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--watchdog", type=float, default=0.1, help="the board's watchdog timeout in s (default 0.1)")
     q.add_argument("--rate-filter", type=float, default=40.0, metavar="HZ",
                    help="cutoff of the rates' filtered difference (default 40 Hz)")
-    q.add_argument("--seed", type=_seed, default=0, help="the virtual board's sensor noise (default 0)")
+    q.add_argument("--seed", type=int, default=0, help="the virtual board's sensor noise (default 0)")
     q.add_argument("-o", "--output", metavar="DIR", help="run folder (default runs/rig/<controller>)")
     q.add_argument("--json", action="store_true", help="print summary.json")
     q.set_defaults(handler=cmd_rig_run)
@@ -926,7 +929,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--board", default="virtual", metavar="NAME[:OPTIONS]", help="as for rig run (default virtual)")
     q.add_argument("--plant", default="qube-servo-3", help="the rig's plant file (default qube-servo-3)")
     q.add_argument("--timeout", type=float, default=20.0, help="give up after this many seconds (default 20)")
-    q.add_argument("--seed", type=_seed, default=0, help="the virtual board's sensor noise (default 0)")
+    q.add_argument("--seed", type=int, default=0, help="the virtual board's sensor noise (default 0)")
     q.add_argument("-o", "--output", metavar="DIR", help="run folder (default runs/rig/home)")
     q.set_defaults(handler=cmd_rig_home)
 
@@ -936,17 +939,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _seed(text: str) -> int:
-    """A seed as argparse reads it: a whole number from 0 to 2**32 - 1 (numpy's), one line else."""
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number from 0 to {2**32 - 1}, got {text!r}") from None
-    if not 0 <= value <= 2**32 - 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number from 0 to {2**32 - 1}, got {value}")
-    return value
+def _check_seed(seed) -> None:
+    """``--seed`` checked before anything starts (a board's noise took -1 as a traceback)."""
+    if seed is not None and not 0 <= seed <= 2**32 - 1:
+        raise ConfigError([f"--seed: expected a whole number from 0 to 2^32 - 1, got {seed}"])
 
 
 class _Terminated(KeyboardInterrupt):

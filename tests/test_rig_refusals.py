@@ -36,10 +36,7 @@ def test_a_negative_seed_is_refused_before_anything_starts(tmp_path, capsys):
     for argv in (["rig", "run", "lqr-qube", "--board", "virtual:fast", "-o", str(tmp_path / "a")],
                  ["rig", "home", "--board", "virtual:fast", "-o", str(tmp_path / "b")],
                  ["tune", "effort-qube", "--board", "virtual:fast", "-o", str(tmp_path / "c")]):
-        try:
-            code = run_cli(capsys, *argv, "--seed", "-1")[0]
-        except SystemExit as stop:   # argparse refuses it
-            code = stop.code
-        err = capsys.readouterr().err
-        assert code == 2 and "Traceback" not in err, (argv, err)
+        code, out, err = run_cli(capsys, *argv, "--seed", "-1")
+        assert code == 2 and "--seed: expected a whole number from 0 to 2^32 - 1" in err, (argv, err)
+        assert len(err.strip().splitlines()) == 1
         assert not (tmp_path / argv[-1]).exists()

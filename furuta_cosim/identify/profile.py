@@ -144,7 +144,7 @@ def _profile(problem: Problem, items, x_hat: np.ndarray, k: int, cost: float, ri
     points = {float(x_hat[k]): 0.0}
     crossing: list = [None, None]
     try:
-        spent = _walk(problem, items, x_hat, k, cost, rise_max, step0, lower, upper, others, points,
+        spent = _walk(problem, x_hat, k, cost, rise_max, step0, lower, upper, others, points,
                       crossing, progress, drift)
     except BudgetSpent:
         spent = True
@@ -168,7 +168,7 @@ def _profile(problem: Problem, items, x_hat: np.ndarray, k: int, cost: float, ri
             "interval": interval, "verdict": verdict}
 
 
-def _walk(problem, items, x_hat, k, cost, rise_max, step0, lower, upper, others, points, crossing,
+def _walk(problem, x_hat, k, cost, rise_max, step0, lower, upper, others, points, crossing,
           progress, drift) -> bool:
     """Walk both sides of unknown ``k`` (filling ``points`` and ``crossing``); False when done."""
     from scipy.optimize import least_squares
