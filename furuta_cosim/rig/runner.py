@@ -282,6 +282,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     make_folder(out, root=True)
     started_wall = time.time()
     signals = _AtSamples()
+    woke = clock = None
     try:
         if zero:
             board.zero_encoders()
@@ -327,6 +328,9 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         status, code, reason = "tripped", TRIPPED, trip.reason
         if done and trip.limit != "deadline":
             rows[done - 1, 5] = 0.0  # the command of the tripping sample was never written
+        if done and rows[done - 1, 2] == 0.0 and woke is not None:
+            # how long the tripping sample took too (a late sample trips a loaded machine's run)
+            rows[done - 1, 2] = max(clock.now() - woke, 1e-9)
     except KeyboardInterrupt as stop:
         terminated = type(stop).__name__ == "_Terminated"
         status, code = ("terminated", TERMINATED) if terminated else ("interrupted", INTERRUPTED)
