@@ -12,14 +12,16 @@ import pytest
 
 
 def _started(folder):
-    """A long swing-up on the virtual board as a user starts it, once its loop runs."""
+    """A long swing-up on the virtual board as a user starts it (1000 s: as fast as it runs, 200 s
+    ended before the signal on a fast machine), once its loop runs."""
     process = subprocess.Popen([sys.executable, "-m", "furuta_cosim.cli", "rig", "run", "swingup-qube",
-                                "--board", "virtual:fast", "--duration", "200", "-o", str(folder)],
+                                "--board", "virtual:fast", "--duration", "1000", "-o", str(folder)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not folder.is_dir() and time.monotonic() < deadline:  # the folder exists once the board is open
         time.sleep(0.05)
     time.sleep(1.0)
+    assert process.poll() is None, "the run ended before the signal (1000 s of it ran in a second?)"
     return process
 
 
