@@ -213,7 +213,8 @@ def cases(names: list[str], seeds: int, workers: int) -> int:
                 except ConfigError as error:  # refused before the fit: the line a user reads
                     seconds = time.monotonic() - clock
                     row["refused_before"] += 1
-                    why = error.problems[0].split(": ", 2)[-1][:90]
+                    # the line a user reads, the scratch folder's path left out
+                    why = error.problems[0].replace(str(folder) + "/", "")[:110]
                     row["why"][why] = row["why"].get(why, 0) + 1
                     row["seconds"].append(seconds)
                     print(f"{name:12s} seed {seed}: refused before the fit in {seconds:.1f} s: {why}", flush=True)
