@@ -16,7 +16,10 @@ def _started(folder):
     ended before the signal on a fast machine), once its loop runs."""
     process = subprocess.Popen([sys.executable, "-m", "furuta_cosim.cli", "rig", "run", "swingup-qube",
                                 "--board", "virtual:fast", "--duration", "1000", "-o", str(folder)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               # as a terminal starts it: a test run in the background inherits
+                               # Ctrl-C ignored, and Python then never installs its handler
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while not folder.is_dir() and time.monotonic() < deadline:  # the folder exists once the board is open
         time.sleep(0.05)
