@@ -285,7 +285,9 @@ def read_result(request: Path, scenarios: list[TrialScenario], metrics) -> dict:
     if request_file.is_file() and path.stat().st_mtime < request_file.stat().st_mtime - 1.0:
         raise ConfigError([f"{where}: older than its request ({request_file.name}): not this trial's result"])
     text = path.read_text(encoding="utf-8", errors="strict")
-    if _depth(text) > MAX_NESTING:
+    from furuta_cosim.identify.variants import _depth   # the one count of nesting (fit.json's too)
+
+    if _depth(text.encode("utf-8")) > MAX_NESTING:
         raise ConfigError([f"{where}: nested deeper than {MAX_NESTING} levels"])
     try:
         document = json.loads(text, parse_constant=_no_constant, object_pairs_hook=_no_duplicates)
@@ -411,31 +413,6 @@ def _finite(value) -> bool:
 
 
 MAX_NESTING = 32   # levels of brackets a result.json may nest
-
-
-def _depth(text: str) -> int:
-    """The deepest nesting of brackets in JSON ``text`` (strings skipped), without parsing it:
-    100,000 nested brackets made the parser recurse past Python's limit."""
-    depth = deepest = 0
-    inside = escaped = False
-    for c in text:
-        if inside:
-            if escaped:
-                escaped = False
-            elif c == "\\":
-                escaped = True
-            elif c == '"':
-                inside = False
-        elif c == '"':
-            inside = True
-        elif c in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-            if deepest > MAX_NESTING:
-                return deepest
-        elif c in "]}":
-            depth -= 1
-    return deepest
 
 
 def _no_duplicates(pairs):
