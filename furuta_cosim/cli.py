@@ -1026,6 +1026,19 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        _forget_interrupted_exec()
+
+
+def _forget_interrupted_exec() -> None:
+    """Let the exit code main returns stand after a Ctrl-C that stopped a string ``exec``.
+
+    CPython (3.11, 3.12) marks the interpreter "interrupted" when a KeyboardInterrupt ends code
+    run by ``exec`` of a string (dataclasses and namedtuple build their methods so: a Ctrl-C
+    during an import lands there), and under ``python -m`` it then dies of SIGINT at exit (-2)
+    even though main caught the interrupt and returned 130. The mark is cleared at the start of
+    every string ``exec``; an empty one clears it.
+    """
+    exec("", {})
 
 
 if __name__ == "__main__":

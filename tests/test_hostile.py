@@ -691,7 +691,8 @@ def test_an_interrupted_tune_says_how_to_resume(tmp_path):
     # Ctrl-C's default action, whatever the launching shell set (a background job ignores it).
     # 1000 calls: the default 150 take 3 to 9 s, and a test process starved that long on a
     # loaded machine sent its Ctrl-C to a run that had ended (it died of the signal on its way
-    # out: -2, once in about 20 suite runs)
+    # out). The other -2 (1 run in about 60): a Ctrl-C landing in a dataclass's exec'd methods
+    # during sklearn's import, which CPython turns into a SIGINT death at exit; main clears it.
     process = subprocess.Popen(CLI + ["tune", "paper-spectral", "-o", str(run), "--workers", "1",
                                       "--n-calls", "1000"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,

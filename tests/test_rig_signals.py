@@ -50,3 +50,23 @@ def test_signals_during_a_rig_run_lose_nothing(tmp_path, signals, pause, code):
     rows = (folder / "log.csv").read_text().splitlines()
     assert len(rows) > 100  # the samples before the signal, every one
     assert not [n for n in names if n.endswith(".partial") or n.startswith(".")]
+
+
+def test_a_ctrl_c_that_stops_a_string_exec_still_exits_130(tmp_path):
+    # A Ctrl-C landing in an import that builds a dataclass (its methods are exec'd strings) once
+    # made `python -m furuta_cosim tune` die of SIGINT (-2) after printing how to resume: CPython
+    # keeps a mark from that exec and, under -m, re-raises SIGINT at exit. The handler here stands
+    # in for the command that the Ctrl-C stopped there.
+    (tmp_path / "stopped_in_exec.py").write_text(
+        "import sys, types\n"
+        "from furuta_cosim import cli\n"
+        "class Parser:\n"
+        "    def parse_args(self, argv):\n"
+        "        return types.SimpleNamespace(handler=lambda args: exec('raise KeyboardInterrupt', {}),\n"
+        "                                     resume_with='furuta-cosim tune x --resume')\n"
+        "cli.build_parser = Parser\n"
+        "sys.exit(cli.main([]))\n")
+    done = subprocess.run([sys.executable, "-m", "stopped_in_exec"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 130, done.stderr
+    assert "interrupted: no file was left half-written; 'furuta-cosim tune x --resume' continues it" in done.stderr
