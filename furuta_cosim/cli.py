@@ -3,7 +3,8 @@
 Heavy modules are imported inside the handlers so that ``--help`` stays instant. Exit codes,
 the same for every command: 0 success; 1 a check failed (a requirement, a regression, a run
 that stopped early, an FMU that fails validation); 2 bad input (one line per problem naming
-the file and key, or the flag); 130 and 143 interrupted or terminated (nothing half-written);
+the file and key, or the flag); 130, 143 and 129 interrupted by Ctrl-C, SIGTERM or SIGHUP
+(nothing half-written; a second signal waits until the files are written);
 141 the reader of the output went away; 75 a run stopped that ``--resume`` continues. A
 warning (``WARN``: a run that never settles) is printed and does not change the code. ``rig
 run`` and ``rig home``: 0 the run went to its end (homing: came to rest), 1 the supervisor
@@ -15,11 +16,13 @@ from __future__ import annotations
 
 import argparse
 import re
+import signal
 import sys
 import textwrap
+import threading
 
 from furuta_cosim.documents import dumps
-from furuta_cosim.errors import ConfigError
+from furuta_cosim.errors import ConfigError, Signalled
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
@@ -945,12 +948,66 @@ def _check_seed(seed) -> None:
         raise ConfigError([f"--seed: expected a whole number from 0 to 2^32 - 1, got {seed}"])
 
 
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, handled like Ctrl-C: every partial file and temporary folder is removed."""
+class _FirstSignalStops:
+    """Ctrl-C, SIGTERM and SIGHUP: the first one stops the command (an exception, so that the
+    way out writes its files and leaves the rig safe); every later one is held off until the
+    process ends with the first one's code. A second Ctrl-C used to land in that way out and
+    kill it half done: a rig run's log, a tuning's last trial. A signal the launching shell set
+    to be ignored (nohup, a background job) stays ignored."""
+
+    def __init__(self):
+        self.first = self.hook = None
+
+    def __call__(self, number, _frame):
+        if self.first is not None:
+            return
+        self.first = number
+        if number == signal.SIGINT:
+            raise KeyboardInterrupt()
+        raise Signalled(signal.Signals(number).name, 128 + number)
+
+    def install(self) -> dict:
+        """The handlers replaced, to put back (none outside the main thread: an embedding
+        program keeps its own)."""
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        previous = {}
+        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+            number = getattr(signal, name, None)
+            if number is not None and signal.getsignal(number) is not signal.SIG_IGN:
+                previous[number] = signal.signal(number, self)
+        self.hook, sys.unraisablehook = sys.unraisablehook, self._lost
+        return previous
+
+    def _lost(self, unraisable) -> None:
+        """A stop raised where Python cannot raise (a weakref callback, a ``__del__``) is only
+        printed and dropped, and the later signals it made us ignore would leave the command
+        running on: send it again, to land in the command (from a thread a moment later: sent
+        from here, its handler runs at once, inside this hook)."""
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and self.first is not None:
+            number, self.first = self.first, None
+            # to the main thread: one that waits in a system call wakes to it
+            threading.Timer(0.01, signal.pthread_kill, (threading.main_thread().ident, number)).start()
+            return
+        self.hook(unraisable)
+
+    def uninstall(self, previous: dict) -> None:
+        """The handlers and hook as they were; after a signal, the rest of a burst ignored:
+        the process is ending, and Python puts the default handlers back as it exits (a late
+        Ctrl-C then killed it, -2, after it said that it wrote its files)."""
+        for number, handler in previous.items():
+            signal.signal(number, handler if self.first is None else signal.SIG_IGN)
+        if self.hook is not None:
+            sys.unraisablehook, self.hook = self.hook, None
 
 
-def _on_sigterm(signum, frame):
-    raise _Terminated()
+def _say(line: str) -> None:
+    """The last line on stderr; a terminal that closed (SIGHUP) cannot take it, and that is no
+    reason to fail the way out."""
+    try:
+        print(line, file=sys.stderr)
+    except OSError:
+        pass
 
 
 def _resume_hint(args) -> str:
@@ -983,15 +1040,11 @@ def as_flags(line: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import signal
-
-    from furuta_cosim.errors import ConfigError, DesignError, FmuError, RunStopped
+    from furuta_cosim.errors import DesignError, FmuError, RunStopped
 
     args = build_parser().parse_args(argv)
-    try:
-        previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    except ValueError:  # not the main thread (an embedding program): leave its handler alone
-        previous = None
+    stops = _FirstSignalStops()
+    previous = stops.install()
     try:
         code = args.handler(args)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
@@ -1017,15 +1070,15 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{error.filename}: " if error.filename else ""
         print(f"error: {where}{error.strerror or error}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except _Terminated:
-        print("terminated: no file was left half-written" + _resume_hint(args), file=sys.stderr)
-        return 143
+    except Signalled as stop:
+        said = "terminated" if stop.name == "SIGTERM" else f"stopped by {stop.name}"
+        _say(f"{said}: no file was left half-written" + _resume_hint(args))
+        return stop.code
     except KeyboardInterrupt:
-        print("interrupted: no file was left half-written" + _resume_hint(args), file=sys.stderr)
+        _say("interrupted: no file was left half-written" + _resume_hint(args))
         return 130
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        stops.uninstall(previous)
         _forget_interrupted_exec()
 
 

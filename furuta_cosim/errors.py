@@ -61,6 +61,16 @@ class DesignError(ValueError):
         super().__init__(message)
 
 
+class Signalled(KeyboardInterrupt):
+    """SIGTERM or SIGHUP (the terminal closed), stopping a command as Ctrl-C does: every partial
+    file removed, the rig made safe, the log written. ``name`` is the signal's, ``code`` the exit
+    code (128 + its number: 143, 129)."""
+
+    def __init__(self, name: str, code: int):
+        self.name, self.code = name, code
+        super().__init__(name)
+
+
 class RunStopped(RuntimeError):
     """A run that stopped before its end through no fault of its input (a lost Dask scheduler,
     no worker left): what it recorded is kept, and ``--resume`` continues it."""

@@ -34,12 +34,12 @@ import numpy as np
 import yaml
 
 from furuta_cosim.documents import dumps
-from furuta_cosim.errors import ConfigError
+from furuta_cosim.errors import ConfigError, Signalled
 from furuta_cosim.files import folder as make_folder, output_folder, write_text
 from furuta_cosim.fmu.plants import content_sha256
 from furuta_cosim.measurement import RATE_FILTER, RateFilter
 from furuta_cosim.rig.board import Board
-from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TERMINATED, TRIPPED, Limits,
+from furuta_cosim.rig.supervisor import (FINISHED, INTERRUPTED, TRIPPED, Limits,
                                          Supervisor, Trip)
 
 COLUMNS = ("t", "late", "compute", "r", "V_command", "V", "theta0", "theta1", "i", "dtheta0",
@@ -156,8 +156,7 @@ class _AtSamples:
         if self.closed:   # the rig is being made safe and the run written: nothing interrupts that
             self.pending = self.pending or number
             return
-        if self.pending is not None:  # a second one: a board's call hangs; stop now
-            self.pending = number
+        if self.pending is not None:  # a second one: a board's call hangs; stop now, as the first says
             self.deliver()
         self.pending = number
 
@@ -171,14 +170,15 @@ class _AtSamples:
         if self.pending is None:
             return
         number, self.pending = self.pending, None
-        if number == getattr(signal, "SIGHUP", None):   # the terminal closed: as SIGTERM
-            number = signal.SIGTERM
         handler = self.previous.get(number)
         if handler is signal.SIG_IGN:
             return
-        if callable(handler):
-            handler(number, None)   # the CLI's SIGTERM or Python's Ctrl-C: raises
-        raise KeyboardInterrupt()   # the default handler: stop as for Ctrl-C
+        if callable(handler):   # the CLI's (the first signal raises) or Python's Ctrl-C
+            handler(number, None)
+            return
+        if number == signal.SIGINT:
+            raise KeyboardInterrupt()
+        raise Signalled(signal.Signals(number).name, 128 + number)   # the default: stop as for Ctrl-C
 
     def restore(self) -> None:
         """The handlers as they were; a signal held while closing is dropped when the run
@@ -332,9 +332,11 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
             # how long the tripping sample took too (a late sample trips a loaded machine's run)
             rows[done - 1, 2] = max(clock.now() - woke, 1e-9)
     except KeyboardInterrupt as stop:
-        terminated = type(stop).__name__ == "_Terminated"
-        status, code = ("terminated", TERMINATED) if terminated else ("interrupted", INTERRUPTED)
-        reason = f"{'SIGTERM' if terminated else 'Ctrl-C'} at t = {max(done - 1, 0) * period:.4f} s"
+        if isinstance(stop, Signalled):   # SIGTERM, SIGHUP
+            status, code, said = "terminated", stop.code, stop.name
+        else:
+            status, code, said = "interrupted", INTERRUPTED, "Ctrl-C"
+        reason = f"{said} at t = {max(done - 1, 0) * period:.4f} s"
         raise
     except BaseException as error:
         status, code = "failed", TRIPPED

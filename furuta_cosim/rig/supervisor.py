@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from furuta_cosim.fmu.plants import voltage_limit
 
 # the exit codes of a rig run, one per way it ends (the CLI's and the docs' table)
-FINISHED, TRIPPED, INTERRUPTED, TERMINATED = 0, 1, 130, 143
+FINISHED, TRIPPED, INTERRUPTED = 0, 1, 130   # a signal other than Ctrl-C: 128 + its number
 
 
 class Trip(Exception):
