@@ -174,13 +174,17 @@ def test_multiple_shooting_fits_a_log_whose_controller_is_not_known(logs, tmp_pa
     code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles",
                              "--workers", "1", "--json")
     document = yaml.safe_load(out)
-    assert code == 0 and document["loops"]["lqr@1"] == "segments", err
+    assert code == 1 and document["loops"]["lqr@1"] == "segments", err
     # a fallback, less informed than the loop: within 10 % on 3 s (measured +7 %, its interval
     # too narrow: the rates at each segment's start are estimated from counts); open loop the
     # same log's whole window gives +111 %
     p = document["parameters"]["R_a"]
     assert p["value"] == pytest.approx(TRUE["R_a"], rel=0.1), p
-    assert document["verdict"]["trusted"]
+    # every segment replays, but the log run through as `replay` runs it (open loop: the
+    # pendulum falls) does not: not a plant to trust for this log
+    assert not document["verdict"]["trusted"]
+    assert any(r.startswith("lqr theta1: replayed whole as `replay` runs it") for r in document["verdict"]["reasons"])
+    assert document["whole"]["lqr"]["theta1"]["rms"] > 0.1   # rad: fallen
 
 
 @pytest.mark.parametrize("change, key, words", [

@@ -56,6 +56,20 @@ def test_segments_of_one_log_are_judged_worse_or_better_as_the_whole_log():
     assert len(reasons) == 1 and reasons[0].startswith("lqr theta0: replays worse")
 
 
+def test_a_log_fitted_in_segments_must_replay_whole():
+    """The issue's case: 3-sample segments each fit while the log, run through, was 121 floors off."""
+    document = _document(2.0 * QUANTUM, 4.0 * QUANTUM, "chirp@1")
+    comparison = document["experiments"]["chirp@1"]["theta0"]
+    document["whole"] = {"chirp": {"theta0": dict(comparison, rms=121 * QUANTUM)}}
+    reasons = judge(document, {})["reasons"]
+    assert len(reasons) == 1 and reasons[0].startswith("chirp theta0: replayed whole as `replay` runs it")
+    assert "121 times its noise floor" in reasons[0]
+    document["whole"]["chirp"]["theta0"]["rms"] = 3 * QUANTUM
+    assert judge(document, {})["trusted"]
+    document["whole"] = {"chirp": {"failure": "an output is not finite at t = 1.5 s"}}
+    assert "its simulation fails (an output is not finite" in judge(document, {})["reasons"][0]
+
+
 @pytest.mark.parametrize("interval, bounds, identifiable, words", [
     ([7.0, 8.0], [1.0, 30.0], True, "identifiable by its sandwich interval (not profiled)"),
     ([-659.0, 679.0], [1.0, 30.0], False, "reaches 0 and reaches the fit's bounds"),

@@ -97,6 +97,25 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     return document
 
 
+def _whole_replays(logs, target: Target, values: dict) -> dict:
+    """Each log fitted in segments replayed whole at the fitted ``values``, as ``replay`` runs
+    it: per output its comparison, or the failure. Segments each restart from the measured
+    state, so they can all fit while the log, run through, does not."""
+    from furuta_cosim.identify.estimate import with_estimate
+
+    found = {}
+    with open_session(target) as session:
+        for experiment in logs:
+            experiment = with_estimate(experiment, target)
+            try:
+                simulated = simulate(session, target, experiment, values)
+            except SimulationFailed as error:
+                found[experiment.name] = {"failure": str(error)}
+                continue
+            found[experiment.name] = compare(experiment, experiment.corrected(simulated, values))
+    return found
+
+
 def _figures(out: Path, experiment: Experiment, simulated: dict) -> list[Path]:
     from furuta_cosim.report.rig import plot_overlay, plot_residuals
 
@@ -179,6 +198,8 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
                                 or not 0.0 <= holdout <= 0.9):
         raise ConfigError([f"holdout: expected a fraction from 0 to 0.9, got {holdout!r}"])
     extra = [load_experiment(Path(v)) for v in validation]
+    whole = parts_of(spec, spec.holdout if holdout is None else float(holdout), extra, segmented=False)
+    whole = [e for e in whole.experiments + whole.validation if e.segments]
     spec = parts_of(spec, spec.holdout if holdout is None else float(holdout), extra)
     names = [e.name for e in spec.experiments + spec.validation]
     twice = sorted({n for n in names if names.count(n) > 1})
@@ -234,6 +255,8 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     from furuta_cosim.identify.verdict import judge, read_intervals
 
     ranges = physical_ranges(target)
+    if whole:
+        document["whole"] = _whole_replays(whole, target, result.values)
     converged = not result.message.startswith("stopped")
     # the verdict on the replays alone, before the profiles spend anything: a fit that does not
     # reproduce its data, or is worse than its start, is not trusted whatever its intervals

@@ -115,10 +115,10 @@ def segments(experiment, seconds: float) -> list:
             for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
 
 
-def parts_of(spec, fraction: float = 0.0, extra=()):
+def parts_of(spec, fraction: float = 0.0, extra=(), segmented: bool = True):
     """``spec`` as it is fitted: the last ``fraction`` of each fitted log held out (validated,
     never fitted), the experiments ``extra`` added to its validation, and each log with
-    ``segments`` cut into them (multiple shooting)."""
+    ``segments`` cut into them (multiple shooting) unless not ``segmented``."""
     fitted, held = [], []
     for experiment in spec.experiments:
         if fraction:
@@ -129,7 +129,7 @@ def parts_of(spec, fraction: float = 0.0, extra=()):
             fitted.append(experiment)
 
     def cut(experiments):
-        return tuple(p for e in experiments for p in (segments(e, e.segments) if e.segments else [e]))
+        return tuple(p for e in experiments for p in (segments(e, e.segments) if e.segments and segmented else [e]))
 
     experiments = cut(fitted)
     # the budget counts simulations: a log cut into n segments costs n a replay

@@ -77,6 +77,22 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
                     reasons.append(
                         f"{name}{held} {output}: replay RMS {c['rms']:.4g} {unit} is {ratio:.3g} times its "
                         f"noise floor ({floor:.3g} {unit}, {what}); at most {tolerance:g} is accepted".replace("  ", " "))
+    for name, found in (document.get("whole") or {}).items():
+        # a log fitted in segments, run through as `replay` runs it
+        if "failure" in found:
+            reasons.append(f"{name}: replayed whole as `replay` runs it, its simulation fails "
+                           f"({found['failure']}): its segments fit, the log does not")
+            continue
+        for output, c in found.items():
+            floor, what = floor_of(c)
+            ratio = c["rms"] / floor if floor > 0 else math.inf
+            outputs.setdefault(f"{name} (whole)", {})[output] = {"rms": c["rms"], "floor": floor, "floors": ratio}
+            if not ratio <= tolerance:
+                unit = _UNITS.get(output, "")
+                reasons.append(f"{name} {output}: replayed whole as `replay` runs it, RMS {c['rms']:.4g} {unit} is "
+                               f"{ratio:.3g} times its noise floor ({floor:.3g} {unit}, {what}); its segments fit, "
+                               "the log does not (a log the plant cannot run through open loop, a balancing one, is replayed "
+                               "through its loop: give the experiment its loop:)".replace("  ", " "))
     reasons += _worse(document)
     if reasons:  # a column that reads far better another way is the first thing to check
         from furuta_cosim.identify.fit import far_line
