@@ -1028,7 +1028,8 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "model": "--model", "duration": "--duration", "scenario": "--scenario",
          "watchdog": "--watchdog", "rate_filter": "--rate-filter", "board": "--board",
          "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait", "starts": "--starts",
-         "bootstrap": "--bootstrap", "holdout": "--holdout", "validation": "--validate", "tolerance": "--tolerance"}
+         "bootstrap": "--bootstrap", "holdout": "--holdout", "validation": "--validate", "tolerance": "--tolerance",
+         "evaluator": "--evaluator external"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

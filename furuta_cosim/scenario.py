@@ -528,6 +528,8 @@ def _requirements(check: Checker, value) -> tuple[Requirement, ...]:
         bounds = {b: check.number(section[b], f"{key}.{b}") for b in METRIC_BOUNDS if b in section}
         if not bounds:
             check.fail(key, "expected a bound: max and/or min")
+        elif None not in bounds.values() and len(bounds) == 2 and bounds["min"] > bounds["max"]:
+            check.fail(key, f"min {bounds['min']:g} is above max {bounds['max']:g}: no value meets both")
         scope = tuple(check.names(section["controllers"], f"{key}.controllers") or ()) if "controllers" in section else ()
         if metric and bounds and None not in bounds.values():
             result.append(Requirement(metric, bounds.get("max"), bounds.get("min"), scope))

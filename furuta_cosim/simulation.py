@@ -34,11 +34,17 @@ def controller_names(scenario: Scenario) -> list[str]:
     return names
 
 
-def unchecked_requirements(scenario: Scenario, running: Sequence[str]) -> list[str]:
-    """Requirements that name no controller of this run: a line each saying so.
+def unchecked_requirements(scenario: Scenario, compiled: Sequence) -> list[str]:
+    """Requirements that name no controller of this run (``compiled``: the controllers about
+    to run): a line each saying so.
 
-    A scope naming a controller that is neither the scenario's nor running is a ConfigError
-    (a misspelt name would otherwise skip its requirement without a word)."""
+    A scope naming a controller that is neither the scenario's nor running, or a requirement on
+    a controller state (``xc3``) that a controller it applies to does not have, is a
+    ConfigError before anything runs (the one would skip its requirement without a word, the
+    other fail it for a value that cannot exist)."""
+    from furuta_cosim.signals import is_controller_state
+
+    running = [c.name for c in compiled]
     known = set(controller_names(scenario)) | set(running)
     problems, notes = [], []
     for k, requirement in enumerate(scenario.requirements):
@@ -46,6 +52,15 @@ def unchecked_requirements(scenario: Scenario, running: Sequence[str]) -> list[s
             if name not in known:
                 problems.append(f"{scenario.source}: requirements[{k}].controllers: no controller "
                                 f"{name!r} in this scenario (controllers: {', '.join(sorted(known))})")
+        signal = requirement.metric.rpartition(".")[0]
+        if is_controller_state(signal):
+            for c in compiled:
+                states = getattr(c.runtime, "n_xc", 0)
+                if requirement.applies_to(c.name) and int(signal[2:]) > states:
+                    problems.append(f"{scenario.source}: requirements[{k}].metric: {c.name} has "
+                                    f"{states or 'no'} controller state{'s' if states != 1 else ''}"
+                                    f" ({', '.join(f'xc{j + 1}' for j in range(states)) or 'a static gain'}): "
+                                    f"no {signal}")
         if requirement.controllers and not set(requirement.controllers) & set(running):
             notes.append(f"{requirement.describe()} applies to {', '.join(requirement.controllers)}, "
                          "which did not run: not checked")
@@ -110,7 +125,7 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     earlier = _files_of_earlier_run(out)
     prepared = prepare(scenario, fmu=fmu)
     compiled = scenario_controllers(prepared, controllers)
-    notes = unchecked_requirements(scenario, [c.name for c in compiled])
+    notes = unchecked_requirements(scenario, compiled)
     log(f"simulating {scenario.name}: {prepared.steps} control steps each for "
         f"{', '.join(c.name for c in compiled)}")
     named = plant_names(prepared)

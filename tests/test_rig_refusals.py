@@ -40,3 +40,55 @@ def test_a_negative_seed_is_refused_before_anything_starts(tmp_path, capsys):
         assert code == 2 and "--seed: expected a whole number from 0 to 2^32 - 1" in err, (argv, err)
         assert len(err.strip().splitlines()) == 1
         assert not (tmp_path / argv[-1]).exists()
+
+
+def _scenario(folder, **changes):
+    data = yaml.safe_load((ROOT / "scenarios" / "qube-step.yaml").read_text())
+    data.update(changes)
+    path = folder / "scenario.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _one_line(code, err, *words):
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert all(w in err for w in words), err
+
+
+# the unclear cases: each one line naming the file or flag, the key and what was expected
+def test_rig_home_with_no_time_names_its_own_flag(tmp_path, capsys):
+    code, out, err = run_cli(capsys, "rig", "home", "--board", "virtual:fast", "--timeout", "0",
+                             "-o", str(tmp_path / "home"))
+    _one_line(code, err, "--timeout: expected seconds in (0, 3600], got 0")
+    assert not (tmp_path / "home").exists()
+
+
+def test_an_external_evaluator_that_is_a_file_is_named(tmp_path, capsys):
+    (tmp_path / "exchange").write_text("not a folder\n")
+    code, out, err = run_cli(capsys, "tune", "effort-qube", "--evaluator", "external", str(tmp_path / "exchange"),
+                             "-o", str(tmp_path / "run"))
+    _one_line(code, err, "--evaluator external: ", "exchange: expected the folder", "got a file")
+
+
+def test_a_requirement_no_value_can_meet_is_refused_before_it_runs(tmp_path, capsys):
+    scenario = _scenario(tmp_path, requirements=[{"metric": "theta0.max_abs", "min": 1.0, "max": 0.1}])
+    code, out, err = run_cli(capsys, "simulate", str(scenario), "-o", str(tmp_path / "out"))
+    _one_line(code, err, "scenario.yaml: requirements[0]: min 1 is above max 0.1")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_requirement_on_a_controller_state_the_controller_lacks_is_refused(tmp_path, capsys):
+    scenario = _scenario(tmp_path, requirements=[{"metric": "xc3.max_abs", "max": 1.0}])
+    code, out, err = run_cli(capsys, "simulate", str(scenario), "-o", str(tmp_path / "out"))
+    _one_line(code, err, "requirements[0].metric: lqr-qube has no controller states (a static gain): no xc3")
+
+
+def test_a_plant_file_named_as_the_loop_s_controller_names_the_experiment_and_key(tmp_path, capsys):
+    from furuta_cosim.identify.synthetic import balancing_log
+
+    experiment = balancing_log(tmp_path / "log", seed=0, duration=0.5)
+    text = experiment.read_text()
+    controller = yaml.safe_load(text)["loop"]["controller"]
+    experiment.write_text(text.replace(f"controller: {controller}", f"controller: {QUBE}"))
+    code, out, err = run_cli(capsys, "replay", str(experiment), "--plant", "qube-servo-3")
+    _one_line(code, err, "experiment.yaml: loop.controller: ", "qube-servo-3.yaml: not a controller file")

@@ -5,6 +5,7 @@ rig answers through files (played by tools/external_rig.py) that are read as hos
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -410,3 +411,21 @@ def test_a_request_folder_that_is_a_link_is_not_written_through(tmp_path):
     with pytest.raises(ConfigError):
         trials.run(tmp_path / "run" / "0001", "0001", scenarios)
     assert (users / "candidate.yaml").read_text() == "mine\n" and sorted(p.name for p in users.iterdir()) == ["candidate.yaml"]
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_a_result_that_is_not_a_plain_file_is_refused_at_once(tmp_path, kind):
+    """A result.json that was a folder or a FIFO waited the whole --wait (an hour by default)."""
+    from furuta_cosim.errors import RunStopped
+
+    request, scenarios = _external_request(tmp_path)
+    trials = ExternalTrials(request.parent, metrics=sorted(METRICS), wait=0.1, poll=0.05)
+    with pytest.raises(RunStopped):   # the request written, no result yet
+        trials.run(tmp_path / "run" / "0001", "0001", scenarios)
+    result = request / "result.json"
+    result.mkdir() if kind == "folder" else os.mkfifo(result)
+    # waiting would end in RunStopped after --wait; a result that never can be is refused first
+    trials = ExternalTrials(request.parent, metrics=sorted(METRICS), wait=3600, poll=0.05)
+    with pytest.raises(ConfigError) as caught:
+        trials.run(tmp_path / "run" / "0001", "0001", scenarios)
+    assert f"result.json: not a plain file (a {'folder' if kind == 'folder' else 'FIFO'})" in str(caught.value)

@@ -258,6 +258,10 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
                 controller = None
             else:
                 digest = hashlib.sha256(controller.read_bytes()).hexdigest()
+                problem = _not_a_controller(controller)
+                if problem:
+                    check.fail("loop.controller", f"{controller}: not a controller file ({problem})")
+                    controller = None
     else:
         law = _law(check, entry["law"], period)
         digest = hashlib.sha256(repr(law).encode()).hexdigest()
@@ -287,6 +291,19 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
         return None
     return Loop(controller, digest, reference, float(rate), None if voltage is None else float(voltage),
                 float(counts), float(delay), law, feedforward)
+
+
+def _not_a_controller(path: Path) -> str | None:
+    """Why the file a loop names is not a controller (its first problem, a plant file's keys
+    among them), or None."""
+    from furuta_cosim.controllers import load_controller
+
+    try:
+        load_controller(path)
+    except ConfigError as error:
+        first = str(error).splitlines()[0]
+        return first.split(": ", 1)[1] if first.startswith(f"{path}: ") else first
+    return None
 
 
 def _law(check: Checker, value, period: float) -> tuple | None:

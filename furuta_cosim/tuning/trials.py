@@ -186,6 +186,9 @@ class ExternalTrials:
     def __init__(self, folder: str | Path, wait: float = WAIT, metrics=(), poll: float = 0.2):
         if not (isinstance(wait, (int, float)) and math.isfinite(wait) and 0 < wait <= 7 * 86400):
             raise ConfigError([f"wait: expected seconds in (0, 604800], got {wait}"])
+        if Path(folder).exists() and not Path(folder).is_dir():
+            raise ConfigError([f"evaluator: {folder}: expected the folder the trials are exchanged "
+                               "through (made if missing), got a file"])
         self.folder = make_folder(Path(folder))
         self.wait, self.metrics, self.poll = float(wait), sorted(set(metrics)), poll
         self.where = f"on an external rig through {self.folder}"
@@ -233,6 +236,9 @@ class ExternalTrials:
             log(f"trial {name}: waiting for {result} (the request was written before)")
         waited = 0.0
         while not result.is_file():
+            if os.path.lexists(result):   # a folder, a FIFO, a dangling link: it never will be a result
+                raise ConfigError([f"{result}: not a plain file (a {_kind(result)}): the rig's result "
+                                   "must be one; remove it"])
             if waited >= self.wait:
                 raise RunStopped(f"no result for trial {name} in {self.wait:g} s ({result}); resume "
                                  "the tuning to wait for it again")
@@ -268,6 +274,15 @@ class ExternalTrials:
                     "fmu": "candidate.fmu", "scenarios": entries, "metrics": self.metrics,
                     "result": "result.json", "statuses": list(STATUSES)}
         write_text(request / "request.json", json.dumps(document, indent=2) + "\n")
+
+
+def _kind(path: Path) -> str:
+    """What a path that is not a plain file is, in a word."""
+    import stat
+
+    mode = os.lstat(path).st_mode
+    return ("symbolic link" if stat.S_ISLNK(mode) else "folder" if stat.S_ISDIR(mode)
+            else "FIFO" if stat.S_ISFIFO(mode) else "socket" if stat.S_ISSOCK(mode) else "device")
 
 
 def read_result(request: Path, scenarios: list[TrialScenario], metrics) -> dict:
