@@ -11,15 +11,20 @@ import time
 import pytest
 
 
+def _as_a_terminal_starts_it():
+    # a test run in the background inherits Ctrl-C ignored, one under nohup SIGHUP ignored, and
+    # the command keeps what its launcher ignored
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
 def _started(folder):
     """A long swing-up on the virtual board as a user starts it (1000 s: as fast as it runs, 200 s
     ended before the signal on a fast machine), once its loop runs."""
     process = subprocess.Popen([sys.executable, "-m", "furuta_cosim.cli", "rig", "run", "swingup-qube",
                                 "--board", "virtual:fast", "--duration", "1000", "-o", str(folder)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               # as a terminal starts it: a test run in the background inherits
-                               # Ctrl-C ignored, and Python then never installs its handler
-                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                               preexec_fn=_as_a_terminal_starts_it)
     deadline = time.monotonic() + 60
     while not folder.is_dir() and time.monotonic() < deadline:  # the folder exists once the board is open
         time.sleep(0.05)
@@ -94,8 +99,7 @@ def test_a_ctrl_c_python_drops_is_sent_again_and_stops_the_command(tmp_path):
         "cli.build_parser = Parser\n"
         "sys.exit(cli.main([]))\n")
     done = subprocess.run([sys.executable, "-m", "lost_in_del"], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=50,
-                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                          text=True, timeout=50, preexec_fn=_as_a_terminal_starts_it)
     assert done.returncode == 130, done.stderr
     assert "Exception ignored" not in done.stderr and "interrupted:" in done.stderr
 
@@ -108,8 +112,7 @@ def test_signals_during_a_rig_tuning_keep_every_trials_log_and_it_resumes(tmp_pa
     spec, run = _spec(tmp_path, trials=4), tmp_path / "run"
     process = subprocess.Popen([sys.executable, "-m", "furuta_cosim", "tune", str(spec), "--board",
                                 "virtual:fast", "-o", str(run)], stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True,
-                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                               stderr=subprocess.PIPE, text=True, preexec_fn=_as_a_terminal_starts_it)
     deadline = time.monotonic() + 120
     while not (run / "trials" / "0001").is_dir() and time.monotonic() < deadline:
         time.sleep(0.01)
