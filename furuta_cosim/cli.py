@@ -152,6 +152,10 @@ def cmd_analyze(args) -> int:
     if args.mapping and not args.model:
         raise ConfigError(["--mapping: maps a plant FMU given with --model PLANT.fmu"])
     model = _design_model(args, None)
+    if args.plot:
+        from furuta_cosim.files import output_folder
+
+        output_folder(args.plot, "--plot")
     found = analyze_file(args.controller, _model_with_mapping(model, args.mapping) if model else None)
     cfile, model, analysis, c = found.cfile, found.model, found.analysis, found.cfile.controller
     if model.provenance.get("note"):
@@ -167,6 +171,16 @@ def cmd_analyze(args) -> int:
             print(f"spectral abscissa: {analysis.spectral_abscissa:.6g}")
         for line in analysis.verdict():
             print(line)
+    if args.plot:
+        if analysis.running_margins is None:
+            print(f"no plots: the loop {'is unstable' if analysis.stable else 'has more than one input'}; "
+                  "margins and sensitivities are of a stable single-input loop", file=sys.stderr)
+        else:
+            from furuta_cosim.report.loop import plot_loop
+
+            written = plot_loop(model, c, args.plot, sampling_period=analysis.sampled.period
+                                if analysis.sampled is not None else None)
+            print("wrote " + ", ".join(str(w) for w in written if w.suffix == ".png"), file=sys.stderr)
     # the exit code follows every verdict printed: the sampled loop of a continuous design too
     sampled_ok = analysis.sampled is None or analysis.sampled.stable
     return 0 if analysis.stable and sampled_ok else EXIT_FAILED
@@ -743,6 +757,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plant", metavar="PLANT", help="analyze on this plant file's linearization "
                                                    "(the same as --model derived:PLANT)")
     p.add_argument("--mapping", metavar="FILE", help="for a plant FMU given with --model: its mapping")
+    p.add_argument("--plot", metavar="DIR", help="write the loop's Bode and Nyquist plots and its sensitivities "
+                                                 "|S|, |T| (PNG and SVG) into DIR")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_analyze)
 

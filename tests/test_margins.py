@@ -50,3 +50,65 @@ def test_analyze_prints_the_margins_and_the_slowest_mode(capsys):
     margins = json.loads(out)["margins"]
     assert 0 < margins["gain"][0] < 1 < margins["gain"][1] and margins["phase_deg"] > 30
     assert 0 < margins["disk"] < 2
+
+
+def test_peaks_of_the_sensitivities_are_the_known_ones():
+    # L = 2/(s - 1): S = (s - 1)/(s + 1) is all-pass (|S| = 1 at every frequency) and
+    # T = 2/(s + 1) peaks at w = 0 with |T| = 2
+    m = loop_margins(_unstable_first_order(), GeneralizedController.static([[2.0]]))
+    assert m.ms == pytest.approx(1.0, abs=1e-6)
+    assert m.mt == pytest.approx(2.0, rel=1e-5) and m.mt_at < 0.01
+
+
+def _sampled_closed_loop_radius(model, controller, period: float, k: float) -> float:
+    """The spectral radius of the sampled loop with the plant's input scaled by k, built from
+    scipy's zero-order hold alone (not python-control's, not this project's)."""
+    from scipy.signal import cont2discrete
+
+    n, m = model.A.shape[0], model.B.shape[1]
+    Phi, Gam, *_ = cont2discrete((model.A, model.B, np.eye(n), np.zeros((n, m))), period, method="zoh")
+    nc = controller.Ac.shape[0]
+    if nc:
+        Ad, Bd, *_ = cont2discrete((controller.Ac, controller.Bc, controller.Cc, controller.Dc), period,
+                                   method="zoh")
+        top = np.hstack([Phi - k * Gam @ controller.Dc, -k * Gam @ controller.Cc])
+        closed = np.vstack([top, np.hstack([Bd, Ad])])
+    else:
+        closed = Phi - k * Gam @ controller.Dc
+    return float(np.max(np.abs(np.linalg.eigvals(closed))))
+
+
+def test_a_continuous_controller_has_the_margins_of_the_sampled_loop_that_runs():
+    # the paper's generalized controller, continuous, runs at 2 ms: its input-gain range is the
+    # sampled loop's (about 0.64 to 3.14), far narrower at the top than the continuous loop's
+    # (about 13.8); checked against the sampled loop's eigenvalues built independently
+    from furuta_cosim.lqr_file import analyze_file
+
+    found = analyze_file("bo-paper")
+    analysis, model, controller = found.analysis, found.model, found.cfile.controller
+    assert not controller.discrete and analysis.sampled is not None
+    running, designed = analysis.running_margins, analysis.margins
+    assert running is analysis.sampled.margins and designed is not None
+    period = analysis.sampled.period
+    low, high = running.gain
+    for k, stable in ((low * 1.01, True), (high * 0.99, True), (low * 0.99, False), (high * 1.01, False)):
+        assert (_sampled_closed_loop_radius(model, controller, period, k) < 1.0) is stable, k
+    assert high < 0.5 * designed.gain[1]     # the hold's delay costs most of the upper margin
+    verdict = analysis.verdict()
+    assert any(line.startswith("Margins of the loop that runs (the sampled loop") for line in verdict)
+    assert any("continuous loop as designed (not the loop that runs)" in line for line in verdict)
+    document = analysis.as_dict()
+    assert document["margins"]["gain"][1] == pytest.approx(high)
+    assert document["margins_continuous"]["gain"][1] == pytest.approx(designed.gain[1])
+    assert "sampled loop" in document["margins_of"]
+
+
+def test_analyze_plot_writes_bode_nyquist_and_sensitivity(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "analyze", "bo-paper", "--plot", str(tmp_path / "loop"))
+    assert code == 0, err
+    for name in ("bode", "nyquist", "sensitivity"):
+        for suffix in (".png", ".svg"):
+            path = tmp_path / "loop" / f"{name}{suffix}"
+            assert path.stat().st_size > 5000, path
+    assert (tmp_path / "loop" / "bode.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "wrote" in err and "Ms " in out and "Mt " in out

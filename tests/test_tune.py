@@ -245,6 +245,20 @@ def test_effort_says_plainly_whether_it_beat_the_lqr(tmp_path):
     else:
         missed = (best["objective"] / lqr["objective"] - 1) * 100
         assert f"does NOT beat it (worse by {missed:.1f} %)" in summary
+    # the result shown: per scenario the tuned response beside the baseline's, and the best
+    # loop's margins (of the sampled loop that runs) with its Bode, Nyquist and |S|, |T| plots
+    for label in ("paper-tracking", "sine-follow", "noise"):
+        assert document["responses"][label] == f"responses/{label}.png"
+        assert (tmp_path / "run" / "responses" / f"{label}.png").stat().st_size > 5000
+        assert f"](responses/{label}.png)" in summary
+    for name in ("bode", "nyquist", "sensitivity"):
+        assert (tmp_path / "run" / "loop" / f"{name}.png").stat().st_size > 5000
+    from furuta_cosim.lqr_file import analyze_file
+
+    again = analyze_file(tmp_path / "run" / "best.yaml").analysis
+    assert "sampled loop" in document["loop"]["margins_of"]
+    assert document["loop"]["margins"]["gain"] == pytest.approx(again.running_margins.as_dict()["gain"])
+    assert "Margins of the loop that runs" in summary
 
 
 @pytest.mark.slow

@@ -87,6 +87,21 @@ class Analysis:
         return float(np.max(np.abs(self.eigenvalues)))
 
     @property
+    def running_margins(self) -> "Margins | None":
+        """The margins of the loop that runs: the sampled loop's for a continuous controller
+        run at a period, else the loop's own."""
+        return self.sampled.margins if self.sampled is not None else self.margins
+
+    @property
+    def margins_of(self) -> str:
+        """Which loop :attr:`running_margins` are of, in words."""
+        if self.sampled is not None:
+            at = self.sampled.period
+            return (f"the sampled loop: the controller at {at * 1e3:g} ms, the plant through a zero-order hold"
+                    if self.time_unit == "s" else f"the sampled loop at {at:g} {self.time_unit}")
+        return "the discrete loop at its period" if self.discrete else "the continuous loop"
+
+    @property
     def mean_square_stable(self) -> bool:
         return self.stable
 
@@ -109,7 +124,11 @@ class Analysis:
                                  "spectral_radius": self.sampled.spectral_radius,
                                  "stable": self.sampled.stable,
                                  "dominant": self.sampled.dominant.as_dict()}
-        result["margins"] = self.margins.as_dict() if self.margins is not None else None
+        running = self.running_margins
+        result["margins"] = running.as_dict() if running is not None else None
+        result["margins_of"] = self.margins_of
+        if self.sampled is not None:
+            result["margins_continuous"] = self.margins.as_dict() if self.margins is not None else None
         result["tracking_bandwidth"] = self.bandwidth
         result["prefilter"] = ({"output": self.tracked_output, "F": self.prefilter}
                                if self.prefilter is not None else
@@ -130,7 +149,12 @@ class Analysis:
             lines.append(f"The closed loop is UNSTABLE: the mode {d.describe()} grows"
                          + (f" (amplitude doubles every {time_text(math.log(2) / growth, unit)})." if growth > 0
                             else " or does not decay."))
-        if self.margins is not None:
+        if self.sampled is not None and self.sampled.margins is not None:
+            lines.append(self.sampled.margins.text(unit, f"Margins of the loop that runs ({self.margins_of})"))
+            if self.margins is not None:
+                lines.append(self.margins.text(unit, "Margins of the continuous loop as designed (not the loop "
+                                                     "that runs)"))
+        elif self.margins is not None:
             lines.append(self.margins.text(unit))
         if self.controller_eigenvalues.size == 0:
             lines.append("The controller is static (n_xc = 0).")
@@ -221,7 +245,8 @@ def analyze(model: LinearModel, controller: GeneralizedController, *,
         variance = [float(v) for v in np.diag(P)[:model.n]]
     sampled = None
     if sampling_period and not discrete and not model.discrete:
-        sampled = analyze(model, discretize_controller(controller, sampling_period), margin=margin)
+        sampled = analyze(model, discretize_controller(controller, sampling_period), margin=margin,
+                          margins=margins)
     F = problem = bandwidth = None
     if tracked_output:
         try:

@@ -9,7 +9,14 @@ controller's period for a discrete controller) and the controller from the state
   open loop, where a gain too low fails as well as one too high: the pendulum);
 - **phase**: at each crossover |L| = 1, 180 deg minus |arg L|; the least of them;
 - **disk**: the balanced disk margin (python-control's ``disk_margins``, skew 0): the gain
-  and phase the input may change by at once and the loop stay stable.
+  and phase the input may change by at once and the loop stay stable;
+- **Ms, Mt**: the peaks of the sensitivity |S| = |1/(1 + L)| and the complementary
+  sensitivity |T| = |L/(1 + L)| over the grid, the robustness figures an engineer compares
+  (1/Ms is the least distance from L to -1 on the Nyquist plot).
+
+A continuous controller runs sampled: analysis.py asks for the margins of the sampled loop
+(the controller discretized at its period, the plant held by a zero-order hold), the loop that
+runs, beside those of the continuous loop.
 
 Classical margins read off crossings (python-control's ``stability_margins``) were wrong on
 the open-loop unstable QUBE loop (a 17.5 deg phase margin where the only crossover has 72 deg),
@@ -39,6 +46,10 @@ class Margins:
     disk: float                      # the balanced disk margin alpha
     disk_gain: float                 # dB: the input's gain may change by +- this ...
     disk_phase: float                # deg: ... and its phase by +- this, at once
+    ms: float = math.nan             # peak |S| and where (rad per time unit)
+    ms_at: float = math.nan
+    mt: float = math.nan             # peak |T| and where
+    mt_at: float = math.nan
 
     def as_dict(self) -> dict:
         def finite(v):
@@ -49,22 +60,43 @@ class Margins:
                             finite(20 * math.log10(self.gain[1])) if math.isfinite(self.gain[1]) else None],
                 "phase_deg": finite(self.phase), "crossover": finite(self.crossover),
                 "disk": finite(self.disk), "disk_gain_db": finite(self.disk_gain),
-                "disk_phase_deg": finite(self.disk_phase)}
+                "disk_phase_deg": finite(self.disk_phase), "ms": finite(self.ms),
+                "ms_frequency": finite(self.ms_at), "mt": finite(self.mt), "mt_frequency": finite(self.mt_at)}
 
-    def text(self, unit: str = "s") -> str:
+    def text(self, unit: str = "s", label: str = "Margins at the plant input") -> str:
         low, high = self.gain
         gain = (f"gain {low:.3g} to {'any' if not math.isfinite(high) else format(high, '.3g')}"
                 + (f" ({20 * math.log10(low):+.1f} dB" if low > 0 else " (")
                 + (f", {20 * math.log10(high):+.1f} dB)" if math.isfinite(high) else ", no upper limit)"))
         phase = ("phase: |L| never crosses 1" if self.phase is None else
                  f"phase {self.phase:.1f} deg at {self.crossover:.3g} rad/{unit}")
-        return (f"Margins at the plant input: {gain}, {phase}, disk {self.disk:.3g} "
-                f"(+-{self.disk_gain:.1f} dB and +-{self.disk_phase:.1f} deg at once).")
+        peaks = (f"; Ms {self.ms:.3g} at {self.ms_at:.3g} rad/{unit}, Mt {self.mt:.3g} at {self.mt_at:.3g} rad/{unit}"
+                 if math.isfinite(self.ms) else "")
+        return (f"{label}: {gain}, {phase}, disk {self.disk:.3g} "
+                f"(+-{self.disk_gain:.1f} dB and +-{self.disk_phase:.1f} deg at once){peaks}.")
 
 
 def loop_margins(model: LinearModel, controller: GeneralizedController) -> Margins:
     """The margins of the loop of ``model`` and ``controller`` at the plant input (module
     docstring); the loop must be stable."""
+    import control
+
+    loop, omega, L = loop_response(model, controller)
+    phase, crossover = _phase(omega, L)
+    disk, disk_gain, disk_phase = control.disk_margins(loop, omega, skew=0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        S, T = np.abs(1.0 / (1.0 + L)), np.abs(L / (1.0 + L))
+    s, t = int(np.nanargmax(S)), int(np.nanargmax(T))
+    if controller.discrete and not model.discrete:
+        model = discretize(model, controller.period)
+    return Margins(_gain_range(model, controller), phase, crossover, float(disk), float(disk_gain),
+                   float(disk_phase), float(S[s]), float(omega[s]), float(T[t]), float(omega[t]))
+
+
+def loop_response(model: LinearModel, controller: GeneralizedController):
+    """(L as a python-control system, the grid of frequencies, L on the grid): the loop broken
+    at the plant input, in the controller's time (a discrete controller's grid ends just below
+    its Nyquist frequency)."""
     import control
 
     discrete = controller.discrete
@@ -80,11 +112,7 @@ def loop_margins(model: LinearModel, controller: GeneralizedController) -> Margi
     top = math.pi / controller.period * (1 - 1e-9) if discrete else HIGHEST
     omega = np.logspace(math.log10(LOWEST), math.log10(top), GRID)
     response = loop.frequency_response(omega)
-    L = np.asarray(response.complex).reshape(-1)
-    phase, crossover = _phase(omega, L)
-    disk, disk_gain, disk_phase = control.disk_margins(loop, omega, skew=0.0)
-    return Margins(_gain_range(model, controller), phase, crossover, float(disk), float(disk_gain),
-                   float(disk_phase))
+    return loop, omega, np.asarray(response.complex).reshape(-1)
 
 
 def _phase(omega: np.ndarray, L: np.ndarray) -> tuple[float | None, float | None]:

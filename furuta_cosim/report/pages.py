@@ -99,6 +99,7 @@ def _tune(folder: Path) -> tuple[str, str, list]:
     provenance = {"spec": data.get("spec"), "method": data.get("method"), "seed": data.get("seed"),
                   "evaluations": data.get("evaluations"), "spec sha256": _hash(folder / "spec.yaml")}
     figures = [p for p in [folder / "tradeoff.svg", folder / "convergence.svg"] if p.is_file()]
+    figures += sorted((folder / "responses").glob("*.svg")) + sorted((folder / "loop").glob("*.svg"))
     return f"tune {data.get('spec')}", md, [provenance, figures]
 
 

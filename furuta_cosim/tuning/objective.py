@@ -197,6 +197,30 @@ class Evaluator:
         # the margin a surrogate models is the co-simulated constraints' alone
         return self._scenarios(controller, constraints, [], order, early)
 
+    def traces(self, controller) -> dict:
+        """``{run label: Trace}`` of ``controller`` (a candidate's matrices, or a swing-up
+        file) on every scenario and plant variant, run as the objective runs it (the prefilter
+        of each scenario's tracked output), every run to its end: for the figures of a run."""
+        from furuta_cosim.controllers import ControllerFile
+        from furuta_cosim.cosim import compile_controller, evaluate
+        from furuta_cosim.design.prefilter import prefilter
+
+        found = {}
+        for label, prepared, _ in self.runs():
+            if isinstance(controller, ControllerFile):
+                cfile = controller
+            else:
+                try:
+                    F = prefilter(self.model, controller, prepared.tracked)
+                except DesignError:
+                    continue
+                cfile = ControllerFile(controller, self.spec.period, self.spec.model, prepared.tracked, F)
+            try:
+                found[label] = evaluate(prepared, self._session(prepared), compile_controller(prepared, cfile)).trace
+            except (ConfigError, FmuError):
+                continue
+        return found
+
     def prefilters(self, controller: GeneralizedController) -> dict[str, float]:
         """The prefilter F of ``controller`` for each output the spec's runs track."""
         from furuta_cosim.design.prefilter import prefilter

@@ -77,9 +77,62 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
         document["front"] = write_front(evaluator, folder, records, baselines, method, seed)
     levels = {name: b["objective"] for name, b in baselines.items() if b["feasible"]}
     plot_convergence(records, folder / "convergence", levels)
+    if best is not None and spec.objective.type != "spectral":
+        document["responses"] = _responses(spec, evaluator, folder, spec.baselines)
+    if best is not None:
+        document["loop"] = _loop(spec, evaluator, folder)
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
     write_text(folder / "summary.md", summary_text(spec, document))
     return document
+
+
+def _responses(spec, evaluator, folder: Path, baselines) -> dict:
+    """The best controller's response beside each baseline's, one figure per scenario run
+    (``responses/<run>.png`` and .svg); ``{run label: figure path relative to folder}``."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.report.figures import plot_runs
+
+    best = load_controller(folder / "best.yaml")
+    runs = {"tuned": evaluator.traces(best if best.swingup is not None else best.controller)}
+    for name in baselines:
+        cfile = load_controller(name)
+        runs[cfile.name] = evaluator.traces(cfile if cfile.swingup is not None else cfile.controller)
+    found = {}
+    (folder / "responses").mkdir(exist_ok=True)
+    for label in runs["tuned"]:
+        traces = {who: found_runs[label] for who, found_runs in runs.items() if label in found_runs}
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
+        plot_runs(traces, folder / "responses" / safe, f"{label}: tuned and baseline")
+        found[label] = f"responses/{safe}.png"
+    return found
+
+
+def _loop(spec, evaluator, folder: Path) -> dict | None:
+    """The best controller's margins on the design model, of the loop that runs (a continuous
+    controller sampled at the spec's period), and its Bode, Nyquist and sensitivity plots in
+    ``loop/``; None for a swing-up file or a loop without margins."""
+    from furuta_cosim.controllers import load_controller
+    from furuta_cosim.design.analysis import analyze
+
+    best = load_controller(folder / "best.yaml")
+    if best.swingup is not None:
+        return None
+    c = best.controller
+    model = evaluator.model
+    sampling = spec.period if not c.discrete and spec.period else None
+    try:
+        analysis = analyze(model, c, margins=True, sampling_period=sampling)
+    except Exception as error:  # noqa: BLE001 - the figures are extra: a run's summary stands without them
+        return {"problem": f"not analysed: {error}"}
+    margins = analysis.running_margins
+    if margins is None:
+        return {"problem": "no margins: the loop is unstable on the design model, or has several inputs"}
+    from furuta_cosim.report.loop import plot_loop
+
+    plot_loop(model, c, folder / "loop", sampling_period=sampling, title=f"{spec.name} best")
+    return {"margins": margins.as_dict(), "margins_of": analysis.margins_of, "text": margins.text(
+        model.time_unit, f"Margins of the loop that runs ({analysis.margins_of})"),
+        "figures": ["loop/bode.png", "loop/nyquist.png", "loop/sensitivity.png"]}
 
 
 EDGE = 0.01      # a tuned parameter within this fraction of its range from a bound is at its edge
@@ -195,6 +248,12 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         for key, value in (matrices.get("swingup") or {}).items():
             lines.append(f"- {key} = {value:.6g}")
         lines += [f"- note: {flag}" for flag in document.get("flags") or []]
+        loop = document.get("loop") or {}
+        if loop.get("text"):
+            lines += ["", loop["text"] + " Bode, Nyquist and sensitivity: loop/bode.png, loop/nyquist.png, "
+                      "loop/sensitivity.png.", "", "![Bode plot of the best controller's loop](loop/bode.png)"]
+        elif loop.get("problem"):
+            lines += ["", f"Loop figures: {loop['problem']}."]
     else:
         lines.append("No feasible controller was found.")
     for name, digest in (document.get("fmus") or {}).items():
@@ -216,6 +275,10 @@ def summary_text(spec: TuningSpec, document: dict) -> str:
         if best and baseline["feasible"] and best.get("metrics") and baseline.get("metrics") \
                 and spec.objective.type == "scenarios":
             lines += _run_by_run(spec, best["metrics"], baseline["metrics"], name)
+    if document.get("responses"):
+        lines += ["", "The tuned controller's response beside the baselines', per scenario:", ""]
+        for label, path in document["responses"].items():
+            lines += [f"![{label}: tuned and baseline]({path})", ""]
     if best and best.get("metrics"):
         lines += ["", "Metric by metric, on every scenario and plant variant:", ""]
         keys = list(dict.fromkeys([t.metric for t in spec.objective.all_terms]
