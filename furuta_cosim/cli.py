@@ -537,8 +537,8 @@ def cmd_replay(args) -> int:
     if document["far"]:
         print(f"not reproduced: {', '.join(document['far'])} replay beyond {document['tolerance']:g} noise "
               "floors RMS (the floor: the encoder's quantum, or the stated or estimated noise); check "
-              "the plant, each column's unit and offset, and for a log recorded under a controller its "
-              "loop: (controller, delay, voltage limit)")
+              "the plant, each column's unit and offset, and for a log recorded under a controller the "
+              "experiment's `loop` key (its controller, delay and voltage limit)")
     return code
 
 

@@ -380,6 +380,8 @@ def step_metrics(t: np.ndarray, y: np.ndarray, y0: float, yfinal: float) -> dict
     # the extreme in the direction of the change (a step down peaks at its lowest value), not
     # the largest |y|, which for a step back toward 0 is where it started
     result["Peak"] = y0 + float(np.max(normalized)) * change
+    if change < 0:  # the least normalized value is the greatest output on a step down
+        result["SettlingMin"], result["SettlingMax"] = result["SettlingMax"], result["SettlingMin"]
     return result
 
 

@@ -41,6 +41,14 @@ def test_a_step_down_peaks_at_its_lowest_value():
     y = 1 - 1.2 * (1 - np.exp(-t)) * (1 + 0.2 * np.exp(-t) * np.sin(5 * t))  # overshoots 0
     step = step_metrics(t, y, 1.0, 0.0)
     assert step["Peak"] == pytest.approx(float(np.min(y)), abs=1e-12) and step["Peak"] < 0
+    # once risen (from 90 % of the change on) the output stays between SettlingMin and
+    # SettlingMax, in its own units, the least below the greatest whichever way it stepped
+    risen = y[np.argmax(y <= 1.0 - 0.9):]
+    assert step["SettlingMin"] == pytest.approx(float(np.min(risen)), abs=1e-9)
+    assert step["SettlingMax"] == pytest.approx(float(np.max(risen)), abs=1e-9)
+    assert step["SettlingMin"] < step["SettlingMax"]
+    up = step_metrics(t, -y, -1.0, 0.0)
+    assert up["SettlingMin"] == pytest.approx(-step["SettlingMax"]) and up["SettlingMax"] == pytest.approx(-step["SettlingMin"])
 
 
 def test_regulation_settling_by_hand():

@@ -92,7 +92,7 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
                 reasons.append(f"{name} {output}: replayed whole as `replay` runs it, RMS {c['rms']:.4g} {unit} is "
                                f"{ratio:.3g} times its noise floor ({floor:.3g} {unit}, {what}); its segments fit, "
                                "the log does not (a log the plant cannot run through open loop, a balancing one, is replayed "
-                               "through its loop: give the experiment its loop:)".replace("  ", " "))
+                               "through its loop: give the experiment its `loop` key)".replace("  ", " "))
     reasons += _worse(document)
     if reasons:  # a column that reads far better another way is the first thing to check
         from furuta_cosim.identify.fit import far_line
