@@ -368,8 +368,9 @@ def _tune_on_rig(args, spec, out, started) -> int:
     def progress(done, total, best, feasible):
         rate = done / max(time.monotonic() - started, 1e-9)
         shown = "none yet" if best is None else format(best, ".6g")
-        bar("rig trials" if total == (args.n_trials or spec.rig.n_trials) else "simulation", done, total,
-            f"best {shown}, feasible {feasible / done:.0%}, {rate:.2f}/s")
+        on_rig = total == (args.n_trials or spec.rig.n_trials)
+        bar("rig" if on_rig else "simulated prior", done, total,
+            f"best {shown}, feasible {feasible / done:.0%}, {rate:.2f}/s", "trial" if on_rig else "evaluation")
 
     where = (["--board", args.board] if args.board else ["--evaluator", "external", args.evaluator[1]])
     args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out), *where]

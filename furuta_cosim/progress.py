@@ -17,8 +17,10 @@ class Progress:
         self._clock, self._delay, self._every, self._unit = time.monotonic, delay, every, unit
         self._bar, self._name, self._started, self._last = None, None, 0.0, 0.0
 
-    def __call__(self, name: str, k: int, steps: int, note: str = "") -> None:
+    def __call__(self, name: str, k: int, steps: int, note: str = "", unit: str | None = None) -> None:
+        """``k`` of ``steps`` done in the stage ``name`` (counted in ``unit``, else the bar's)."""
         now = self._clock()
+        unit = unit or self._unit
         if name != self._name:
             self.close()
             self._name, self._started, self._last = name, now, now
@@ -26,17 +28,22 @@ class Progress:
             return
         if sys.stderr.isatty():
             if self._bar is None:
-                self._bar = tqdm(total=steps, desc=f"  {name}", unit=self._unit, unit_scale=True,
+                self._bar = tqdm(total=steps, desc=f"  {name}", unit=unit, unit_scale=True,
                                  leave=False, file=sys.stderr)
             if note:
                 self._bar.set_postfix_str(note)
             self._bar.update(k - self._bar.n)
         elif now - self._last >= self._every or k == steps:
             self._last = now
-            print(f"  {name}: {k}/{steps} {self._unit}s ({k / steps:.0%})" + (f", {note}" if note else ""),
+            print(f"  {name}: {k}/{steps} {_plural(unit)} ({k / steps:.0%})" + (f", {note}" if note else ""),
                   file=sys.stderr)
 
     def close(self) -> None:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+
+
+def _plural(unit: str) -> str:
+    """``evaluation`` -> ``evaluations``; a symbol (``s``, ``V``) stays as it is."""
+    return unit if len(unit) <= 2 else unit + "s"

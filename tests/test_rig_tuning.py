@@ -83,6 +83,14 @@ def test_a_rig_tuning_scores_each_trial_from_its_log_and_keeps_every_trial(tmp_p
         assert (trial / "candidate.yaml").is_file() and (trial / "trial.json").is_file()
     summary = (folder / "summary.md").read_text()
     assert "Tuning effort-small on the rig" in summary and (folder / "best.yaml").is_file()
+    # the rig's score beside the simulation's of the same controller, and why they differ: the
+    # gap (rig minus simulation) over the trials, as the safe method models it
+    gaps = [r["value"] - r["simulation"]["value"] for r in records
+            if math.isfinite(r.get("value", math.nan)) and math.isfinite(r["simulation"].get("value", math.nan))]
+    gap = document["gap"]
+    assert gap["trials"] == len(gaps) and gap["median"] == pytest.approx(float(np.median(gaps)), rel=1e-12)
+    assert gap["min"] <= gap["best"] <= gap["max"]
+    assert f"{gap['median']:+.4g} (median; from {gap['min']:+.4g} to {gap['max']:+.4g})" in summary
     assert (folder / "simulation" / "history.jsonl").is_file()  # the simulated fidelity, a run of its own
 
 

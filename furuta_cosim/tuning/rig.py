@@ -478,6 +478,7 @@ def finish_rig(spec, folder: Path, evaluator: RigEvaluator, records: list[dict],
                             "origin": best.get("origin") or "", "parameters": best["parameters"],
                             "metrics": best["metrics"], "file": "best.yaml", "prefilter": prefilter,
                             "trial": best.get("trial"), "simulation": best.get("simulation")}
+    document["gap"] = _gap(ran, best)
     levels = {name: b["objective"] for name, b in baselines.items() if b["feasible"]}
     plot_convergence(records, folder / "convergence", levels)
     if best is not None:
@@ -485,6 +486,27 @@ def finish_rig(spec, folder: Path, evaluator: RigEvaluator, records: list[dict],
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
     write_text(folder / "summary.md", rig_summary_text(spec, document))
     return document
+
+
+def _gap(ran: list[dict], best: dict | None) -> dict | None:
+    """The rig against the simulation of the same controllers: per trial with both values the
+    objective on the rig minus the simulated one (what the safe method's gap models), their
+    median and range, and the best trial's; None without such a trial."""
+    import math
+
+    import numpy as np
+
+    def one(r):
+        sim = (r.get("simulation") or {}).get("value") if isinstance(r.get("simulation"), dict) else None
+        value = r.get("value", r.get("objective"))
+        ok = all(isinstance(v, (int, float)) and math.isfinite(v) for v in (sim, value))
+        return float(value) - float(sim) if ok else None
+
+    gaps = [g for g in (one(r) for r in ran) if g is not None]
+    if not gaps:
+        return None
+    return {"trials": len(gaps), "median": float(np.median(gaps)), "min": min(gaps), "max": max(gaps),
+            "best": one(best) if best is not None else None}
 
 
 def _figures(evaluator: RigEvaluator, folder: Path, best: dict, baselines: dict) -> list[str]:
@@ -578,6 +600,16 @@ def rig_summary_text(spec, document: dict) -> str:
                         else "."))
         lines.append("A rig's score is one trial's: running best.yaml again scores within the rig's "
                      "trial-to-trial spread, not to the digit.")
+        gap = document.get("gap")
+        if gap and gap.get("best") is not None:
+            lines.append(
+                f"Why the two differ: the rig is not the model. Over the {gap['trials']} trials with both "
+                f"scores, the rig's objective minus the same controller's in simulation was "
+                f"{gap['median']:+.4g} (median; from {gap['min']:+.4g} to {gap['max']:+.4g}), "
+                f"{gap['best']:+.4g} for best.yaml"
+                + ("; the safe method models this gap as it goes (a GP over the trials' differences) and "
+                   "proposes only what the simulation plus the gap says is safe." if document["method"] == "safe"
+                   else "."))
     else:
         lines.append("No feasible controller was found on the rig.")
     from furuta_cosim.tuning.summary import baseline_line
