@@ -643,6 +643,7 @@ def cmd_rig_run(args) -> int:
     try:
         summary = run_rig(controller, board, plant, out, duration=args.duration, scenario=args.scenario,
                           watchdog=args.watchdog, rate_filter=args.rate_filter, zero=not args.keep_zero,
+                          catch=args.catch,
                           log=lambda line: (bar.close(), print(line, file=sys.stderr)),
                           progress=lambda t, total: bar("rig", int(t), int(round(total)), ""))
     finally:
@@ -928,6 +929,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--keep-zero", action="store_true",
                    help="keep the board's counts from before instead of zeroing them (a free swing "
                         "released by hand: zero hanging, lift, start, let go)")
+    q.add_argument("--catch", type=float, default=0.3, metavar="RAD",
+                   help="a balance controller without a swing-up starts only with the pendulum within "
+                        "RAD of upright (default 0.3); else the run is refused before anything moves")
     from furuta_cosim.rig.board import BOARDS
     from furuta_cosim.rig import quanser, virtual  # noqa: F401 - their boards, for the help
     q.add_argument("--board", default="virtual", metavar="NAME[:OPTIONS]",

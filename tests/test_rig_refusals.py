@@ -92,3 +92,35 @@ def test_a_plant_file_named_as_the_loop_s_controller_names_the_experiment_and_ke
     experiment.write_text(text.replace(f"controller: {controller}", f"controller: {QUBE}"))
     code, out, err = run_cli(capsys, "replay", str(experiment), "--plant", "qube-servo-3")
     _one_line(code, err, "experiment.yaml: loop.controller: ", "qube-servo-3.yaml: not a controller file")
+
+
+def test_a_balance_controller_on_a_hanging_pendulum_is_refused_before_anything_moves(tmp_path, capsys):
+    # lqr-qube balances near upright; the virtual board starts hanging, as a rig at rest does:
+    # refused in one line, the amplifier never enabled, no run folder (not even the board's log)
+    code, out, err = run_cli(capsys, "rig", "run", "lqr-qube", "--board", "virtual:fast", "--duration", "1",
+                             "-o", str(tmp_path / "run"))
+    assert code == 2, err
+    assert "the pendulum reads 3.14 rad from upright" in err and "within 0.3 rad" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
+
+
+def test_a_balance_only_run_starts_with_the_pendulum_held_upright(tmp_path, capsys):
+    # the virtual board can start near upright (held there, its encoder zeroed hanging): the
+    # balance controller takes over at once and keeps it up; a catch narrower than the start refuses
+    code, out, err = run_cli(capsys, "rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.05",
+                             "--duration", "2", "-o", str(tmp_path / "run"))
+    assert code == 0, err
+    import numpy as np
+
+    from furuta_cosim.rig.runner import COLUMNS
+    from furuta_cosim.swingup import wrap
+
+    log = np.loadtxt(tmp_path / "run" / "log.csv", delimiter=",", skiprows=1)
+    pendulum = np.array([wrap(v) for v in log[:, COLUMNS.index("theta1")]])
+    assert abs(pendulum[0] - 0.05) < 0.01 and np.max(np.abs(pendulum)) < 0.1
+    code, out, err = run_cli(capsys, "rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.2",
+                             "--catch", "0.1", "--duration", "1", "-o", str(tmp_path / "narrow"))
+    assert code == 2 and "reads 0.199 rad from upright" in err and "within 0.1 rad" in err, err
+    code, out, err = run_cli(capsys, "rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.7",
+                             "--duration", "1", "-o", str(tmp_path / "far"))
+    assert code == 2 and "upright=RAD (-0.5 to 0.5)" in err, err

@@ -48,6 +48,10 @@ COLUMNS = ("t", "late", "compute", "r", "V_command", "V", "theta0", "theta1", "i
 WATCHDOG = 0.1           # s: the board's watchdog timeout
 MAX_DURATION = 3600.0    # s: one run at most (its log is kept in memory)
 LATE_WARNING = 0.1       # a sample later than this fraction of the period is worth a warning
+# rad from upright: a balance-only controller is started only with its pendulum this close to
+# upright (the swing-up's own catch angle, swingup.py, where it hands over to a balance law: a
+# linear law designed at upright is not asked to catch a pendulum any farther out)
+CATCH = 0.3
 
 
 def controller_for(controller, period: float | None = None, scenario=None):
@@ -200,7 +204,7 @@ class _AtSamples:
 def run_rig(controller, board: Board, plant, output: str | Path, *, duration: float | None = None,
             scenario=None, watchdog: float = WATCHDOG, rate_filter: float = RATE_FILTER,
             limits: Limits | None = None, zero: bool = True, log: Callable[[str], None] = lambda line: None,
-            progress: Callable[[float, float], None] | None = None) -> dict:
+            progress: Callable[[float, float], None] | None = None, catch: float = CATCH) -> dict:
     """Run ``controller`` on ``board`` and write the run folder ``output`` (module docstring).
 
     Parameters
@@ -231,6 +235,9 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         Takes the lines a run says (a warning, why it stopped).
     progress : callable, optional
         ``progress(t, duration)`` about once a second.
+    catch : float
+        A balance-only controller (no swing-up) starts only with the pendulum within this many
+        rad of upright; else the run is refused before the amplifier is enabled.
 
     Returns
     -------
@@ -247,7 +254,8 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         raise ConfigError(["duration: give a duration or a scenario (`scenario`), one of them"])
     if duration is not None and (not math.isfinite(duration) or not 0 < duration <= MAX_DURATION):
         raise ConfigError([f"duration: expected seconds in (0, {MAX_DURATION:g}], got {duration}"])
-    for name, value, low, high in (("watchdog", watchdog, 0.005, 10.0), ("rate_filter", rate_filter, 0.1, 1e4)):
+    for name, value, low, high in (("watchdog", watchdog, 0.005, 10.0), ("rate_filter", rate_filter, 0.1, 1e4),
+                                   ("catch", catch, 1e-3, math.pi)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
             raise ConfigError([f"{name}: expected a number in [{low:g}, {high:g}], got {value}"])
     out = output_folder(output)
@@ -281,14 +289,28 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     status, code, reason, failed = "finished", FINISHED, f"ran its {steps * period:g} s", []
     done = 0
     runtime.reset()
+    existed = out.exists()
     board.open()  # a board that cannot be opened drove nothing: one error, no run folder
+    try:
+        if zero:
+            board.zero_encoders()
+        if cfile is not None and cfile.swingup is None and mode is None and _balances(cfile):
+            _within_catch(board, cfile, signs, per_count, catch)
+    except BaseException:
+        board.close()   # never enabled: nothing was driven, and no run folder is left
+        if not existed and out.is_dir():  # but for the log a board keeps of its own (the virtual's)
+            for name in ("board.csv",):
+                (out / name).unlink(missing_ok=True)
+            try:
+                out.rmdir()
+            except OSError:
+                pass
+        raise
     make_folder(out, root=True)
     started_wall = time.time()
     signals = _AtSamples()
     woke = clock = None
     try:
-        if zero:
-            board.zero_encoders()
         board.write(0.0)
         board.arm_watchdog(watchdog)
         board.enable()
@@ -360,6 +382,32 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         finally:
             signals.restore()
     return summary
+
+
+def _balances(cfile) -> bool:
+    """Whether a controller feeds the pendulum back (its angle or rate, states 2 and 3): a
+    balance law, as against one that moves the arm alone with the pendulum hanging."""
+    c = cfile.controller
+    acts = np.abs(np.asarray(c.Dc, dtype=float))[:, 2:4].any()
+    if c.n_xc:
+        acts = acts or np.abs(np.asarray(c.Bc, dtype=float))[:, 2:4].any()
+    return bool(acts)
+
+
+def _within_catch(board, cfile, signs, per_count: float, catch: float) -> None:
+    """Refuse (ConfigError) a balance-only controller whose pendulum, as the board reads it now
+    with the amplifier off, is farther than ``catch`` from upright."""
+    from furuta_cosim.swingup import wrap
+
+    reading = board.read()
+    theta1 = math.pi + signs[1] * reading.pendulum * per_count
+    off = abs(wrap(theta1))
+    if off > catch:
+        raise ConfigError([f"{cfile.source}: a balance controller without a swing-up, and the pendulum reads "
+                           f"{off:.3g} rad from upright (it balances only within {catch:g} rad, its catch "
+                           "region): hold the pendulum upright and start it with --keep-zero, run a "
+                           "swing-up-and-balance file (swingup-qube), or widen --catch RAD; nothing was "
+                           "driven"])
 
 
 def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, code, reason, failed,

@@ -38,7 +38,8 @@ class VirtualRig:
     """The simulated hardware (see the module docstring); ``advance(t)`` steps it to ``t``."""
 
     def __init__(self, fmu: str, start: dict, sensors: dict, *, amplifier: float = AMPLIFIER,
-                 delay: float = DELAY, step: float = STEP, seed: int = 0, capacity: int = 1_000_000):
+                 delay: float = DELAY, step: float = STEP, seed: int = 0, capacity: int = 1_000_000,
+                 lifted: bool = False):
         import numpy as np
 
         from furuta_cosim.fmu.session import PlantSession
@@ -56,6 +57,9 @@ class VirtualRig:
         # the counts as a board powered up with the rig at rest counts them: from the arm's zero
         # and the pendulum hanging (a runner zeroes them again when it starts a run)
         self.zero = (0.0, math.pi)
+        # held up by hand before the run (``upright=``): the pendulum's encoder keeps the zero it
+        # was given hanging, and a runner's zeroing moves the arm's alone
+        self.lifted = bool(lifted)
         self.pending: list[tuple[float, float]] = []   # (when it reaches the motor, volts)
         self.written = 0.0      # the last command written
         self.level = 0.0        # what the amplifier is driving toward (after the delay)
@@ -82,7 +86,7 @@ class VirtualRig:
         return not self.expired
 
     def zero_encoders(self) -> None:
-        self.zero = (self.theta0, self.theta1)
+        self.zero = (self.theta0, self.zero[1] if self.lifted else self.theta1)
 
     def reading(self) -> Reading:
         scale = self.counts / (2.0 * math.pi)
@@ -173,12 +177,13 @@ class VirtualBoard(Board):
     description = ("the rig stand-in: a plant FMU stepped in real time in a process of its own, "
                    "read and driven as a QUBE's board (options: fast, to run it as fast as it can; "
                    "delay=SECONDS, 0.001 by default; amplifier=VOLTS, 15 by default; pendulum=RAD, "
-                   "the pendulum held that far from hanging at the start, for a free swing)")
+                   "the pendulum held that far from hanging at the start, for a free swing; upright=RAD, "
+                   "the pendulum held that far from upright at the start, for a balance-only run)")
     has_current = True
 
     def __init__(self, plant, *, paced: bool = True, log: Path | None = None, amplifier: float = AMPLIFIER,
                  delay: float = DELAY, step: float = STEP, seed: int = 0, overrides: dict | None = None,
-                 hanging: bool = True):
+                 hanging: bool = True, lifted: bool = False):
         from furuta_cosim.fmu.exporter import build_fmu
 
         self.plant = plant
@@ -189,7 +194,7 @@ class VirtualBoard(Board):
         if hanging:  # a real pendulum starts hanging down, at rest
             start.setdefault("theta1_start", math.pi)
         self.arguments = (str(build_fmu(plant)), start, dict(plant.sensors))
-        self.settings = {"amplifier": amplifier, "delay": delay, "step": step, "seed": seed}
+        self.settings = {"amplifier": amplifier, "delay": delay, "step": step, "seed": seed, "lifted": bool(lifted)}
         self.rig: VirtualRig | None = None
         self._process = self._shared = None
 
@@ -197,7 +202,9 @@ class VirtualBoard(Board):
     def from_argument(cls, argument: str, plant=None, **options) -> "VirtualBoard":
         """``virtual[:OPTION,...]``: ``fast`` (as fast as it can), ``delay=SECONDS`` (from a write
         to the motor), ``amplifier=VOLTS`` (its range), ``pendulum=RAD`` (held that far from
-        hanging when the run starts, then let go: a free swing, run with the counts kept)."""
+        hanging when the run starts, then let go: a free swing, run with the counts kept),
+        ``upright=RAD`` (held that far from upright, -0.5 to 0.5, when the run starts, its encoder
+        zeroed hanging before it was lifted: a balance controller takes over at once)."""
         if plant is None:
             raise ConfigError(["board: the virtual board runs a plant: give `plant`"])
         paced = options.pop("paced", True)
@@ -206,17 +213,23 @@ class VirtualBoard(Board):
             if item == "fast":
                 paced = False
                 continue
-            bounds = {"delay": (0.0, 0.1), "amplifier": (0.1, 1000.0), "pendulum": (-3.0, 3.0)}.get(name)
+            bounds = {"delay": (0.0, 0.1), "amplifier": (0.1, 1000.0), "pendulum": (-3.0, 3.0),
+                      "upright": (-0.5, 0.5)}.get(name)
             try:
                 value = float(text) if equals and bounds else math.nan
             except ValueError:
                 value = math.nan
             if bounds is None or not bounds[0] <= value <= bounds[1]:
                 raise ConfigError([f"board: virtual:{argument}: {item!r}: expected fast, delay=SECONDS "
-                                   "(0 to 0.1), amplifier=VOLTS (0.1 to 1000) or pendulum=RAD (-3 to 3), "
+                                   "(0 to 0.1), amplifier=VOLTS (0.1 to 1000), pendulum=RAD (-3 to 3) or upright=RAD "
+                                   "(-0.5 to 0.5), "
                                    "separated by commas"])
             if name == "pendulum":
                 options.setdefault("overrides", {})["theta1_start"] = math.pi + value
+                continue
+            if name == "upright":
+                options.setdefault("overrides", {})["theta1_start"] = value
+                options["lifted"] = True
                 continue
             options[name] = value
         return cls(plant, paced=paced, **options)
