@@ -437,3 +437,26 @@ def test_a_result_that_is_not_a_plain_file_is_refused_at_once(tmp_path, kind):
     with pytest.raises(ConfigError) as caught:
         trials.run(tmp_path / "run" / "0001", "0001", scenarios)
     assert f"result.json: not a plain file (a {'folder' if kind == 'folder' else 'FIFO'})" in str(caught.value)
+
+
+def test_a_board_that_cannot_be_opened_stops_the_tuning_before_its_simulated_prior(tmp_path, capsys, monkeypatch):
+    # the board is opened and read (amplifier off) before the run folder and the 150-evaluation
+    # prior: without the SDK, or with no board connected, one line and nothing written
+    from helpers import run_cli
+
+    monkeypatch.setitem(sys.modules, "quanser", None)  # the SDK not installed
+    code, out, err = run_cli(capsys, "tune", str(_spec(tmp_path)), "--board", "quanser", "-o", str(tmp_path / "run"))
+    assert code == 2 and "Quanser's Python HIL API is not installed" in err, err
+    assert len(err.strip().splitlines()) == 1 and "simulat" not in err and not (tmp_path / "run").exists()
+    monkeypatch.delitem(sys.modules, "quanser")
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "fake_quanser"))
+    from quanser import hardware
+
+    monkeypatch.setattr(hardware.HIL, "fail_open", -1073)
+    code, out, err = run_cli(capsys, "tune", str(_spec(tmp_path)), "--board", "quanser", "-o", str(tmp_path / "run"))
+    assert code == 2 and "open: no such board is connected" in err and not (tmp_path / "run").exists(), err
+
+
+def test_a_reset_file_that_cannot_swing_up_is_refused_before_the_run(tmp_path):
+    with pytest.raises(ConfigError, match="rig.reset: .*lqr-qube.*not a swing-up-and-balance file"):
+        BoardTrials("virtual:fast", QUBE, "lqr-qube", 0.5, 0)

@@ -103,8 +103,30 @@ class BoardTrials:
         self.board, self.plant, self.reset, self.fall, self.seed = board, plant, reset, fall, seed
         self.options = dict(options or {})
         self.at_rest = False  # nothing is known of the rig before this session's first homing
-        board_for(board, plant, **self._options(None, "check"))  # a bad board fails before the run
+        self._check(board_for(board, plant, **self._options(None, "check")))
         self.where = f"on the {board} board"
+
+    def _check(self, board) -> None:
+        """Before the run (its folder, its simulated prior): the reset file is a swing-up, the
+        board opens (its SDK, its channels) and reads finite counts and current with the
+        amplifier off; one ConfigError otherwise. Nothing is driven."""
+        import math
+
+        from furuta_cosim.controllers import load_controller
+
+        reset = load_controller(self.reset)
+        if reset.swingup is None:
+            raise ConfigError([f"rig.reset: {self.reset}: not a swing-up-and-balance file: a trial resets the "
+                               "rig by swinging the pendulum up (e.g. reset: swingup-qube)"])
+        board.open()
+        try:
+            reading = board.read()
+        finally:
+            board.close()
+        values = (reading.arm, reading.pendulum) + ((reading.current,) if reading.current is not None else ())
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ConfigError([f"--board {self.board}: the board reads {values} with the amplifier off: "
+                               "not finite counts and current; check its channels"])
 
     def _options(self, folder: Path | None, name: str) -> dict:
         options = dict(self.options)
