@@ -246,6 +246,8 @@ def _print_table(scenario, results, document) -> None:
     for name in names:
         if entries[name]["failure"]:
             print(f"FAIL  {name}: the run {entries[name]['failure']}")
+        if entries[name].get("diverged"):
+            print(f"FAIL  {name}: diverged: {entries[name]['diverged']}")
         for warning in entries[name].get("warnings", []):
             print(f"WARN  {name}: {warning}")
         for text, verdict in entries[name]["requirements"].items():

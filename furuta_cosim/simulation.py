@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 
 import json
+
+import numpy as np
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -131,11 +133,16 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
     named = plant_names(prepared)
     if named:
         log(f"  on {prepared.fmu.name}: {named}")
+    for c in compiled:
+        other = design_mismatch(getattr(c, "cfile", None), prepared)
+        if other:
+            log(f"warning: {c.name}: {other}")
     folder(out)
     results, entries, written = {}, {}, []
     for result in runs(prepared, compiled, progress=progress):
         entry = result.save(out, every=every, trace=traces)
         entry["warnings"] = concerns(result.metrics)
+        entry["diverged"] = None if result.failure else diverged(result.trace, prepared)
         if entry["trace"]:
             written.append(Path(entry["trace"]).name)
         results[result.controller], entries[result.controller] = result, entry
@@ -154,11 +161,54 @@ def simulate_scenario(scenario: Scenario, output: str | Path, *,
                 "steps": prepared.steps, "trace_every": every, "controllers": entries,
                 "unchecked": notes, "figures": [f.name for f in figures],
                 "files": sorted(written + ["metrics.json"]),
-                "passed": all(r.passed for r in results.values())}
+                "passed": all(r.passed for r in results.values())
+                and not any(e["diverged"] for e in entries.values())}
     write_text(out / "metrics.json", dumps(document, indent=2) + "\n")
     for name in earlier - set(document["files"]):
         (out / name).unlink(missing_ok=True)  # an earlier run's file this run did not write
     return document, results
+
+
+def design_mismatch(cfile, prepared) -> str | None:
+    """A line when a controller file was designed on a plant's linearization (``model:
+    derived:PLANT``) and the scenario runs another plant (by content), else None. A linear
+    model file names no plant, and is not compared."""
+    model = str(getattr(cfile, "model", "") or "")
+    if prepared.plant is None or not (model == "derived" or model.startswith("derived:")):
+        return None
+    from furuta_cosim.fmu.plants import content_sha256, load_plant
+
+    name = model.partition(":")[2] or "paper-calibrated"
+    try:
+        designed = load_plant(name, beside=cfile.path.parent if getattr(cfile, "path", None) else None)
+    except ConfigError:
+        return None
+    if content_sha256(designed) == content_sha256(prepared.plant):
+        return None
+    return (f"designed on {designed.name} (model {model}), run here on {prepared.plant.name}: its gains "
+            "are not this plant's, so expect it to do worse or to fail")
+
+
+def diverged(trace, prepared) -> str | None:
+    """Why a run left what its plant allows, else None: the pendulum fell (from within pi/2 of
+    upright to beyond it), or the arm or the current went past the plant file's ``limits``
+    (what a rig's supervisor would have stopped)."""
+    from furuta_cosim.swingup import wrap
+
+    signals = trace.signals
+    if "theta1" in signals and len(signals["theta1"]):
+        pendulum = np.array([abs(wrap(float(v))) for v in signals["theta1"] if math.isfinite(v)])
+        if len(pendulum) and pendulum[0] < math.pi / 2 and pendulum.max() > math.pi / 2:
+            return f"the pendulum fell: {pendulum.max():.3g} rad from upright"
+    limits = dict(prepared.plant.limits) if prepared.plant is not None else {}
+    for signal, key, unit in (("theta0", "theta0", "rad"), ("i", "current", "A")):
+        bound = limits.get(key)
+        if bound and signal in signals and len(signals[signal]):
+            peak = float(np.nanmax(np.abs(signals[signal])))
+            if peak > bound:
+                return (f"|{signal}| reached {peak:.4g} {unit}, beyond the plant's limits.{key} of {bound:g} {unit} "
+                        "(a rig's supervisor stops there)")
+    return None
 
 
 def concerns(metrics: dict) -> list[str]:

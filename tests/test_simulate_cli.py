@@ -102,3 +102,19 @@ def test_the_exit_code_policy_is_in_the_help():
 
     text = " ".join(build_parser().format_help().split())
     assert "exit codes: 0 success; 1 a check failed" in text and "2 bad input" in text
+
+
+def test_a_controller_designed_for_another_plant_warns_and_its_divergence_exits_1(tmp_path, capsys):
+    # lqr-qube is designed on the QUBE's linearization; paper-step runs the paper's plant, where
+    # it drives the pendulum over (to 2.06 rad from upright at 21,600 V): one warning line
+    # before the run, a FAIL after it, exit 1
+    code, out, err = run_cli(capsys, "simulate", "paper-step", "--controller", "lqr-qube", "-o", str(tmp_path / "a"))
+    assert code == 1, err
+    warnings = [line for line in err.splitlines() if line.startswith("warning: lqr-qube:")]
+    assert len(warnings) == 1 and "designed on qube-servo-3" in warnings[0] and "on paper-calibrated" in warnings[0]
+    assert "FAIL  lqr-qube: diverged: the pendulum fell" in out
+    document = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert document["passed"] is False and document["controllers"]["lqr-qube"]["diverged"].startswith("the pendulum fell")
+    # on its own plant: no warning, no divergence
+    code, out, err = run_cli(capsys, "simulate", "qube-step", "-o", str(tmp_path / "b"))
+    assert code == 0 and "warning" not in err and "diverged" not in out, (out, err)
