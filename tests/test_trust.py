@@ -132,16 +132,21 @@ def _spec(folder: Path, logs: dict, change=lambda data: None, off: float = 0.3, 
 
 
 def test_a_window_cut_mid_motion_does_not_keep_its_log_s_start(logs, tmp_path):
-    """The run's start (rates 0, current 0) is refused where the window starts at 2 s."""
-    path = tmp_path / _experiment(logs["fitted"], tmp_path, "cut", lambda d: d.update(window=[2.0, 6.0]))
+    """The run's start (rates 0, current 0) is refused where the window starts mid-motion: at a
+    sample whose current is far from 0 (15 noise standard deviations), found in the log."""
+    log = np.genfromtxt(logs["fitted"].parent / "log.csv", delimiter=",", names=True)
+    k = int(np.argmax((log["t"] > 1.0) & (np.abs(log["i"]) > 15 * 0.004)))
+    start = float(log["t"][k])
+    assert start > 1.0
+    path = tmp_path / _experiment(logs["fitted"], tmp_path, "cut", lambda d: d.update(window=[start, 6.0]))
     with pytest.raises(ConfigError) as caught:
         load_experiment(path)
     [line] = caught.value.problems
-    assert "start.i: 0 A, but the measured i at the window's start" in line and "t = 2 s" in line
+    assert "start.i: 0 A, but the measured i at the window's start" in line and f"t = {start:g} s" in line
     assert "i: data" in line and "{free: [lo, hi]}" in line
     # read from the log: taken, and how it was read is said; the run's own start stands at t = 0
     freed = tmp_path / _experiment(logs["fitted"], tmp_path, "freed", lambda d: (
-        d.update(window=[2.0, 6.0]), d["start"].update(i="data", dtheta0="data")))
+        d.update(window=[start, 6.0]), d["start"].update(i="data", dtheta0="data")))
     experiment = load_experiment(freed)
     assert experiment.start["i"] == experiment.outputs["i"].values[0]
     assert "slope of theta0" in experiment.start_from["dtheta0"]

@@ -72,6 +72,11 @@ class Board:
         """The encoders' counts and the current now."""
         raise NotImplementedError
 
+    def counts(self) -> tuple[int, int]:
+        """The encoders' counts now (arm, pendulum), for a check that needs no current."""
+        reading = self.read()
+        return reading.arm, reading.pendulum
+
     def write(self, volts: float) -> None:
         """Drive the motor.
 

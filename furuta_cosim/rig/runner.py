@@ -399,8 +399,8 @@ def _within_catch(board, cfile, signs, per_count: float, catch: float) -> None:
     with the amplifier off, is farther than ``catch`` from upright."""
     from furuta_cosim.swingup import wrap
 
-    reading = board.read()
-    theta1 = math.pi + signs[1] * reading.pendulum * per_count
+    _, pendulum = board.counts()
+    theta1 = math.pi + signs[1] * pendulum * per_count
     off = abs(wrap(theta1))
     if off > catch:
         raise ConfigError([f"{cfile.source}: a balance controller without a swing-up, and the pendulum reads "

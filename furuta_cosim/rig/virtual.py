@@ -88,6 +88,12 @@ class VirtualRig:
     def zero_encoders(self) -> None:
         self.zero = (self.theta0, self.zero[1] if self.lifted else self.theta1)
 
+    def encoders(self) -> tuple[int, int]:
+        """The counts alone: no current sampled, so the sensor's noise stream is not drawn."""
+        scale = self.counts / (2.0 * math.pi)
+        return (int(round(self.signs[0] * (self.theta0 - self.zero[0]) * scale)),
+                int(round(self.signs[1] * (self.theta1 - self.zero[1]) * scale)))
+
     def reading(self) -> Reading:
         scale = self.counts / (2.0 * math.pi)
         arm = int(round(self.signs[0] * (self.theta0 - self.zero[0]) * scale))
@@ -267,6 +273,12 @@ class VirtualBoard(Board):
             values = (shared[_ARM_COUNTS], shared[_PENDULUM_COUNTS], shared[_CURRENT])
             if before == shared[_SEQ] and int(before) % 2 == 0:
                 return Reading(int(values[0]), int(values[1]), values[2])
+
+    def counts(self) -> tuple[int, int]:
+        if self.rig is not None:   # a check before a run draws none of the current's noise
+            return self.rig.encoders()
+        reading = self.read()
+        return reading.arm, reading.pendulum
 
     def write(self, volts: float) -> None:
         if self.rig is not None:
