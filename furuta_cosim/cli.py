@@ -512,7 +512,14 @@ def cmd_replay(args) -> int:
     from furuta_cosim.identify.replay import target_for
     from furuta_cosim.identify.run import replay
 
-    target = target_for(plant=None if args.fmu else args.plant, fmu=args.fmu, mapping=args.mapping)
+    plant = args.plant
+    if plant is None and not args.fmu:
+        from furuta_cosim.identify.replay import recorded_plant
+
+        plant, line = recorded_plant(args.experiments)
+        if line:
+            print(f"note: {line}", file=sys.stderr)
+    target = target_for(plant=None if args.fmu else (plant or "furuta"), fmu=args.fmu, mapping=args.mapping)
     document = replay(args.experiments, target, output=args.output, tolerance=args.tolerance)
     code = 0 if document["reproduced"] else EXIT_FAILED
     if args.json:
@@ -676,6 +683,36 @@ def cmd_rig_home(args) -> int:
     print(summary_text(summary), end="")
     print(f"run folder: {out}")
     return summary["code"]
+
+
+def cmd_rig_check_signs(args) -> int:
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.progress import Progress
+    from furuta_cosim.rig.board import board_for
+    from furuta_cosim.rig.checks import check_signs
+
+    plant = load_plant(args.plant)
+    if args.rig and not args.board.startswith("virtual"):
+        raise ConfigError(["--rig: the plant a virtual board runs; a real board is its own rig"])
+    board = board_for(args.board, load_plant(args.rig) if args.rig else plant)
+    print(f"checking {plant.name}'s sensors on the {args.board} board with the amplifier off for "
+          f"{args.seconds:g} s: turn the arm by hand a quarter of a turn the way a positive voltage turns it "
+          "and back, then lift the pendulum a little and let it swing", file=sys.stderr)
+    bar = Progress(delay=0.0, unit="s")
+    try:
+        found = check_signs(board, plant, seconds=args.seconds, zero=not args.keep_zero,
+                            progress=lambda t, total: bar("reading", int(t), int(round(total)), ""))
+    finally:
+        bar.close()
+    if args.json:
+        print(dumps(found))
+    else:
+        for name, check in found["checks"].items():
+            print(f"{check['verdict'].upper():7s} {name}: {check['says']}")
+        for line in found["left"]:
+            print(f"WARNING the board was not left safe: {line}")
+    verdicts = [c["verdict"] for c in found["checks"].values()]
+    return EXIT_FAILED if "wrong" in verdicts or found["left"] else 0 if "unsure" not in verdicts else EXIT_FAILED
 
 
 def cmd_list(args) -> int:
@@ -869,7 +906,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = commands.add_parser("replay", help="run a log's inputs (and its loop, if it names one) on a plant and compare")
     p.add_argument("experiments", nargs="+", help="experiment files (YAML naming a CSV log)")
-    p.add_argument("--plant", default="furuta", help="plant file or name (default: furuta)")
+    p.add_argument("--plant", help="plant file or name (default: the plant a rig run's log was recorded on, "
+                                   "else furuta)")
     p.add_argument("--fmu", help="a plant FMU from another tool instead of --plant")
     p.add_argument("--mapping", metavar="FILE", help="for --fmu: its names and units (as regress --mapping)")
     p.add_argument("-o", "--output", metavar="DIR", help="write overlay and residual figures and replay.json there")
@@ -958,6 +996,18 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seed", type=int, default=0, help="the virtual board's sensor noise (default 0)")
     q.add_argument("-o", "--output", metavar="DIR", help="run folder (default runs/rig/home)")
     q.set_defaults(handler=cmd_rig_home)
+    q = rigs.add_parser("check-signs", help="read the encoders and the current with the amplifier off and "
+                                            "say which sign of the plant file is wrong")
+    q.add_argument("--board", default="virtual", metavar="NAME[:OPTIONS]", help="as for rig run (default virtual)")
+    q.add_argument("--plant", default="qube-servo-3", help="the rig's plant file whose sensors are checked "
+                                                          "(default qube-servo-3)")
+    q.add_argument("--rig", metavar="PLANT", help="the virtual board only: the plant it runs, when not --plant "
+                                                  "(a rig whose sensors differ from the file checked)")
+    q.add_argument("--seconds", type=float, default=10.0, help="how long to read (default 10)")
+    q.add_argument("--keep-zero", action="store_true", help="keep the board's counts from before instead of "
+                                                            "zeroing them with the rig at rest")
+    q.add_argument("--json", action="store_true", help="print the verdicts as JSON")
+    q.set_defaults(handler=cmd_rig_check_signs)
 
     p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
     p.add_argument("path", help="the .fmu file")

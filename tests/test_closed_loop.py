@@ -33,7 +33,7 @@ def _replay(path):
 def test_a_swing_up_and_balance_log_replays_with_its_loop_closed(run):
     loop = yaml.safe_load((run / "experiment.yaml").read_text())["loop"]
     assert loop == {"controller": "controllers/swingup-qube.yaml", "reference": "r", "rate_filter": 40.0,
-                    "counts": 2048, "voltage": 10.0, "delay": 0.001}
+                    "counts": 2048, "late": "late", "compute": "compute", "voltage": 10.0, "delay": 0.001}
     closed = _replay(run / "experiment.yaml")
     assert closed["experiments"]["run"]["loop"] == "closed"
     rms = {o: c["rms"] for o, c in closed["experiments"]["run"]["outputs"].items()}
@@ -99,3 +99,63 @@ def test_a_swing_up_file_without_a_description_is_kept_readable(tmp_path):
     written = save_controller(cfile, tmp_path / "kept.yaml")
     assert "description" not in yaml.safe_load(written.read_text())
     assert load_controller(written).swingup is not None
+
+
+def test_a_log_whose_samples_were_read_late_replays_at_the_times_it_was_read(tmp_path):
+    # the fast virtual board's clock wakes each sample up to 1.5 ms late (whole 0.5 ms steps,
+    # seeded), as a busy machine does; the log's `late` column says when each sample was read.
+    # Replayed at those times the swing-up is reproduced; at the nominal times it is not
+    from furuta_cosim.cli import main
+
+    out = tmp_path / "late"
+    assert main(["rig", "run", "swingup-qube", "--board", "virtual:fast,late=0.0015", "--duration", "4",
+                 "-o", str(out)]) == 0
+    data = yaml.safe_load((out / "experiment.yaml").read_text())
+    data["loop"].pop("late")
+    data["name"] = "nominal"
+    (out / "nominal.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    timed = _replay(out / "experiment.yaml")["experiments"]["late"]["outputs"]
+    nominal = _replay(out / "nominal.yaml")["experiments"]["nominal"]["outputs"]
+    assert timed["theta0"]["rms"] < 4 * QUANTUM and timed["theta1"]["rms"] < 2 * QUANTUM, timed
+    assert nominal["theta0"]["rms"] > 20 * QUANTUM, nominal
+
+
+def test_a_rig_log_replays_on_the_plant_it_was_recorded_on(run, capsys):
+    code, out, err = run_cli(capsys, "replay", str(run / "experiment.yaml"))
+    assert code == 0, err
+    assert "note: replayed on qube-servo-3, the plant the rig run ran on" in err
+    assert out.startswith("replay on qube-servo-3")
+    code, out, err = run_cli(capsys, "replay", str(run / "experiment.yaml"), "--plant", "qube-servo-3-worn")
+    assert out.startswith("replay on qube-servo-3-worn") and "note:" not in err
+
+
+@pytest.mark.parametrize("values, expected", [
+    ({5: "-0.001"}, "loop.late: log.csv: line 7: -0.001 s: expected seconds from 0 to 10 samples"),
+    ({5: "nan"}, "log.csv: line 7, column late: nan is not a finite number"),
+    ({5: "0.5"}, "loop.late: log.csv: line 7: 0.5 s: expected seconds"),
+    ({5: "0.0", 4: "0.0039"}, "loop.late: log.csv: line 7: read before the sample before it"),
+])
+def test_a_bad_late_column_is_one_line_naming_its_line(run, tmp_path, capsys, values, expected):
+    import shutil
+
+    folder = tmp_path / "copy"
+    shutil.copytree(run, folder)
+    lines = (folder / "log.csv").read_text().splitlines()
+    column = lines[0].split(",").index("late")
+    for row, value in values.items():
+        cells = lines[row + 1].split(",")
+        cells[column] = value
+        lines[row + 1] = ",".join(cells)
+    (folder / "log.csv").write_text("\n".join(lines) + "\n")
+    line = one_line(capsys, "replay", str(folder / "experiment.yaml"))
+    assert expected in line, line
+
+
+def test_held_means_by_hand():
+    import numpy as np
+
+    from furuta_cosim.identify.split import held_means
+
+    # 0 until 0.5, then 1 until 1.5, 2 until 2.0, then 3
+    means = held_means(np.array([0.5, 1.5, 2.0]), np.array([1.0, 2.0, 3.0]), np.array([0.0, 1.0, 2.0]))
+    assert means.tolist() == pytest.approx([0.5, 1.5, 3.0])

@@ -40,7 +40,8 @@ UNIFORM_TOLERANCE = 0.01
 LINE = "\0line"  # read_csv's entry for the line number of each row in the file
 _KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
          "outputs", "start", "parameters", "delimiter", "rig", "loop", "segments")
-_LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "voltage", "counts", "delay")
+_LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "voltage", "counts", "delay",
+              "late", "compute")
 _LAW_KEYS = ("K", "F", "period")
 MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
 _SIGNAL_KEYS = ("column", "unit", "scale", "offset")
@@ -91,6 +92,18 @@ class Loop:
     # a balancing log: the controller sees its logged angles moved by the simulation's departure
     # from their estimated true values (identify/estimate.py sets it)
     estimate: bool = False
+    # s from each sample's reading to its command's write (a rig's `compute` column; None: 0)
+    compute: np.ndarray | None = None
+
+    def cut(self, keep: slice) -> "Loop":
+        """The loop over the samples ``keep`` of its log's window."""
+        from dataclasses import replace
+
+        def part(values):
+            return None if values is None else values[keep]
+
+        return replace(self, reference=part(self.reference), feedforward=part(self.feedforward),
+                       compute=part(self.compute))
 
     def controller_file(self):
         """The ControllerFile the replay runs: the file's, or the law's as a static controller."""
@@ -130,6 +143,15 @@ class Experiment:
     alias: str = ""              # a part of a log (identify/split.py): the whole log's name
     # how a start given as `data` was read (state -> a line identify prints)
     start_from: Mapping[str, str] = field(default_factory=lambda: Frozen({}))
+    # s after each row's time that its outputs were read (a rig's `late` column; None: on time)
+    late: np.ndarray | None = None
+    # the plant file a rig run recorded it on: (its name, its content's sha256), from `rig.plant`
+    recorded_on: tuple | None = None
+
+    @property
+    def read_at(self) -> np.ndarray:
+        """When each sample was read: ``t``, plus ``late`` where the log records it."""
+        return self.t if self.late is None else self.t + self.late
 
     @property
     def samples(self) -> int:
@@ -161,11 +183,9 @@ class Experiment:
 
         inputs = {k: v if np.isscalar(v) else v[:keep] for k, v in self.inputs.items()}
         outputs = {k: replace(m, values=m.values[:keep]) for k, m in self.outputs.items()}
-        loop = self.loop
-        if loop is not None:
-            loop = replace(loop, reference=None if loop.reference is None else loop.reference[:keep],
-                           feedforward=None if loop.feedforward is None else loop.feedforward[:keep])
-        return replace(self, t=self.t[:keep], inputs=Frozen(inputs), outputs=Frozen(outputs), loop=loop)
+        loop = None if self.loop is None else self.loop.cut(slice(None, keep))
+        return replace(self, t=self.t[:keep], inputs=Frozen(inputs), outputs=Frozen(outputs), loop=loop,
+                       late=None if self.late is None else self.late[:keep])
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -209,14 +229,20 @@ def load_experiment(path: str | Path) -> Experiment:
     # row: a log's own first row is where its logger knew the state (a rig run starts at rest)
     start, start_from = _start(check, top.get("start", {}), outputs, t, cut=first > 0)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
-    loop = _loop(check, top["loop"], path, table, columns, keep, period) if "loop" in top else None
+    loop = _loop(check, top["loop"], path, table, columns, keep, period, csv) if "loop" in top else None
     segments = 0.0
     if "segments" in top:
         segments = check.number(top["segments"], "segments", positive=True, maximum=1e6)
         if segments is not None and segments < 3 * period:
             check.fail("segments", f"{segments:g} s is shorter than 3 samples ({period:g} s each)")
-    if "rig" in top:  # what `rig run` records of the run (its board, controller, period): for people
-        check.mapping(top["rig"], "rig", optional=tuple(top["rig"]) if isinstance(top["rig"], dict) else ())
+    recorded_on = None
+    if "rig" in top:  # what `rig run` records of the run (its board, controller, period, plant)
+        rig = check.mapping(top["rig"], "rig", optional=tuple(top["rig"]) if isinstance(top["rig"], dict) else ())
+        if rig and "plant" in rig:
+            plant_name = check.string(rig["plant"], "rig.plant")
+            digest_of = rig.get("plant_sha256", "")
+            if plant_name is not None:
+                recorded_on = (plant_name, str(digest_of) if isinstance(digest_of, str) else "")
     for state in start:
         if f"{state}_start" in parameters:  # one of the two would be dropped without a word
             check.fail(f"parameters.{state}_start", f"sets the start of {state}, which start.{state} "
@@ -226,13 +252,48 @@ def load_experiment(path: str | Path) -> Experiment:
     for key in ("inputs", "outputs"):
         section = top.get(key) if isinstance(top.get(key), dict) else {}
         units.update({str(n): e["unit"] for n, e in section.items() if isinstance(e, dict) and "unit" in e})
+    late = None
+    if loop is not None and isinstance(top.get("loop"), dict) and "late" in top["loop"]:
+        late = _timing_column(check, top["loop"], "late", table, columns, keep, period, csv, t)
+        check.done()
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
-                      start_from=Frozen(start_from))
+                      start_from=Frozen(start_from), late=late, recorded_on=recorded_on)
 
 
-def _loop(check: Checker, value, path: Path, table, columns, keep, period: float) -> Loop | None:
+def _timing_column(check: Checker, entry: dict, key: str, table, columns, keep, period: float, csv: Path,
+                   t: np.ndarray | None = None) -> np.ndarray | None:
+    """``loop.late`` or ``loop.compute``: a column of seconds per sample, each from 0 to
+    MAX_DELAY_SAMPLES periods; the samples' read times (``t`` + late) must increase."""
+    name = check.string(entry[key], f"loop.{key}")
+    if name is None:
+        return None
+    if name not in columns:
+        check.fail(f"loop.{key}", f"{excerpt(name)} is not one of columns ({', '.join(columns)})")
+        return None
+    values = np.asarray(table[name][keep], dtype=float)
+    lines = table[LINE][keep]
+    values = np.where((values < 0) & (values > -1e-9), 0.0, values)  # a clock's rounding below 0
+    bad = np.nonzero(~np.isfinite(values) | (values < 0) | (values > MAX_DELAY_SAMPLES * period))[0]
+    if len(bad):
+        k = int(bad[0])
+        check.fail(f"loop.{key}", f"{csv.name}: line {lines[k]}: {float(values[k])!r} s: expected seconds from 0 to "
+                                  f"{MAX_DELAY_SAMPLES} samples ({MAX_DELAY_SAMPLES * period:g} s)")
+        return None
+    if not np.any(values > 1e-9):
+        return None   # on time to the nanosecond (a simulated clock): the nominal times are exact
+    if t is not None:
+        backwards = np.nonzero(np.diff(t + values) <= 0)[0]
+        if len(backwards):
+            k = int(backwards[0]) + 1
+            check.fail("loop.late", f"{csv.name}: line {lines[k]}: read before the sample before it "
+                                    "(time + late does not increase)")
+            return None
+    return values
+
+
+def _loop(check: Checker, value, path: Path, table, columns, keep, period: float, csv: Path) -> Loop | None:
     """``loop:``: the controller file (beside the experiment file) or a state-feedback law, the
     reference and feedforward columns, the rates' filter, the voltage limit, the encoders'
     counts, the delay (the keys ``rig run`` writes, and ``law``/``feedforward`` for a log from
@@ -277,6 +338,9 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
         return None
 
     reference, feedforward = column("reference"), column("feedforward")
+    compute = None
+    if "compute" in entry:
+        compute = _timing_column(check, entry, "compute", table, columns, keep, period, csv)
     rate = check.number(entry.get("rate_filter", RATE_FILTER), "loop.rate_filter", minimum=0.1, maximum=1e4)
     voltage = entry.get("voltage")
     if voltage is not None:
@@ -290,7 +354,7 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
     if law is None and controller is None:
         return None
     return Loop(controller, digest, reference, float(rate), None if voltage is None else float(voltage),
-                float(counts), float(delay), law, feedforward)
+                float(counts), float(delay), law, feedforward, compute=compute)
 
 
 def _not_a_controller(path: Path) -> str | None:

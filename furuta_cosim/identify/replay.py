@@ -95,6 +95,40 @@ def target_for(plant: str | Path | None = None, fmu: str | Path | None = None,
                   fixed=loaded.parameters)
 
 
+def recorded_plant(paths) -> tuple[str | None, str]:
+    """(the plant a set of logs was recorded on, a line saying so) when every log is a rig
+    run's experiment file naming the same plant (``rig.plant``), found beside the log or among
+    the shipped plants; (None, "") when they name none or different ones. A plant found by
+    name whose content is not the one the run used is named in the line."""
+    from furuta_cosim.fmu.plants import content_sha256, load_plant
+    from furuta_cosim.identify.experiment import load_experiment
+
+    found = set()
+    for path in paths:
+        experiment = load_experiment(path)
+        if experiment.recorded_on is None:
+            return None, ""
+        found.add((experiment.recorded_on, experiment.path.parent))
+    names = {name for (name, _), _ in found}
+    if len(names) != 1:
+        return None, ""
+    (name, digest), beside = next(iter(found))
+    plant = None
+    for candidate in (name, Path(name).stem):
+        try:
+            plant = load_plant(candidate, beside=beside)
+            break
+        except ConfigError:
+            continue
+    if plant is None:
+        raise ConfigError([f"rig.plant: the log was recorded on {name}, which is neither beside it nor a "
+                           "shipped plant: give the rig's plant file with --plant"])
+    same = not digest or content_sha256(plant) == digest
+    return str(plant.path), (f"replayed on {plant.name}, the plant the rig run ran on (rig.plant; --plant "
+                             "chooses another)" + ("" if same else f"; its file {plant.path.name} has changed "
+                                                   "since the run (another sha256)"))
+
+
 @contextmanager
 def open_session(target: Target) -> Iterator:
     from furuta_cosim.fmu.session import PlantSession
@@ -240,15 +274,28 @@ def simulate(session, target: Target, experiment: Experiment,
         session.set_io(inputs=[v for v, _, _ in fmu_in], outputs=[v for v, _, _ in fmu_out])
         raw[0] = session.get([v for v, _, _ in fmu_out])
         h, step, block = experiment.period, session.step, 4096
+        # a log that records when each sample was read (a rig's `late`) is stepped to those times
+        steps = None if experiment.late is None else np.diff(experiment.read_at).tolist()
         for first in range(0, experiment.samples - 1, block):
             for k, row in enumerate(u[first:min(first + block, experiment.samples - 1)].tolist(), start=first):
-                raw[k + 1] = step(row, h)
+                raw[k + 1] = step(row, h) if steps is None else _held(session, row, steps[k], h, many=True)
     except FmuError as error:
         raise SimulationFailed(str(error)) from None
     if not np.all(np.isfinite(raw)):
         k = int(np.argmax(~np.all(np.isfinite(raw), axis=1)))
         raise SimulationFailed(f"{target.label}: an output is not finite at t = {experiment.t[k]:g} s")
     return {n: raw[:, j] * scale + offset for j, (n, (_, scale, offset)) in enumerate(zip(names, fmu_out))}
+
+
+def _held(session, value, seconds: float, longest: float, many: bool = False):
+    """Step ``session`` ``seconds`` with its input(s) held at ``value``, in steps no longer than
+    ``longest`` (the log's period: the plant file's integration is stable at it, a late
+    sample's long interval is not); returns the outputs at the end."""
+    pieces = max(1, int(math.ceil(seconds / longest - 1e-9)))
+    inputs = value if many else [value]
+    for _ in range(pieces - 1):
+        session.step(inputs, seconds / pieces)
+    return session.step(inputs, seconds / pieces)
 
 
 def period(t: np.ndarray, y: np.ndarray) -> float | None:
@@ -398,6 +445,14 @@ def closed_loop(session, target: Target, experiment: Experiment,
     part = loop.delay - whole * h
     if part < 1e-12 * h:
         part = 0.0
+    # a log that records when each sample was read and its command written (a rig's `late` and
+    # `compute`): the plant is stepped to each reading, its voltage switched at each write plus
+    # the delay, wherever those fall
+    timed = experiment.late is not None or loop.compute is not None
+    read = experiment.read_at
+    arrive = read + (loop.compute if loop.compute is not None else 0.0) + loop.delay
+    pending: list[tuple[float, float]] = []
+    level, now_t = 0.0, float(read[0])
     try:
         session.reset(parameters=overrides(target, experiment, values or {}), start_time=float(experiment.t[0]))
         session.set_io(inputs=[v_name], outputs=[v for v, _, _ in fmu_out])
@@ -418,7 +473,18 @@ def closed_loop(session, target: Target, experiment: Experiment,
             if limit is not None:
                 u = max(-limit, min(limit, u))
             volts[k] = u
-            if k < n - 1:
+            if timed and k < n - 1:
+                pending.append((max(float(arrive[k]), pending[-1][0] if pending else now_t), u))
+                end = float(read[k + 1])
+                while pending and pending[0][0] < end - 1e-12:
+                    when, value = pending.pop(0)
+                    if when - now_t > 1e-12:
+                        _held(session, (level - v_offset) / v_scale, when - now_t, h)
+                        now_t = when
+                    level = value
+                y = _held(session, (level - v_offset) / v_scale, end - now_t, h)
+                now_t = end
+            elif k < n - 1:
                 now = volts[k - whole] if k >= whole else 0.0
                 if part > 0.0:  # the command before it reaches the motor for the first part
                     before = volts[k - whole - 1] if k >= whole + 1 else 0.0

@@ -54,16 +54,42 @@ def delayed(experiment):
     if loop is None:
         return experiment
     inputs = dict(experiment.inputs)
-    if "V" in inputs and loop.delay > 0.0 and not np.isscalar(inputs["V"]):
+    timed = experiment.late is not None or loop.compute is not None
+    if "V" in inputs and (loop.delay > 0.0 or timed) and not np.isscalar(inputs["V"]):
         written = np.asarray(inputs["V"], dtype=float)
         if loop.voltage is not None:
             written = np.clip(written, -loop.voltage, loop.voltage)
-        whole = int(np.floor(loop.delay / experiment.period + 1e-9))
-        fraction = loop.delay / experiment.period - whole
-        now = np.concatenate([np.zeros(min(whole, len(written))), written[:max(len(written) - whole, 0)]])
-        before = np.concatenate([[0.0], now[:-1]])
-        inputs["V"] = (1.0 - fraction) * now + fraction * before
+        if timed:   # each command at the motor from its write plus the delay, averaged over each sample
+            read = experiment.read_at
+            at = read + (loop.compute if loop.compute is not None else 0.0) + loop.delay
+            inputs["V"] = held_means(np.maximum.accumulate(at), written, read)
+        else:
+            whole = int(np.floor(loop.delay / experiment.period + 1e-9))
+            fraction = loop.delay / experiment.period - whole
+            now = np.concatenate([np.zeros(min(whole, len(written))), written[:max(len(written) - whole, 0)]])
+            before = np.concatenate([[0.0], now[:-1]])
+            inputs["V"] = (1.0 - fraction) * now + fraction * before
     return replace(experiment, inputs=Frozen(inputs), loop=None)
+
+
+def held_means(switches: np.ndarray, values: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Per interval [samples[k], samples[k+1]) the mean of a signal that is 0 before
+    ``switches[0]`` and ``values[j]`` from ``switches[j]`` on (``switches`` not decreasing); the
+    last sample's interval as long as the one before it."""
+    ends = np.append(samples, samples[-1] + (samples[-1] - samples[-2] if len(samples) > 1 else 1.0))
+    # the signal's integral from switches[0] to each switch, then to each end
+    widths = np.diff(switches)
+    area = np.concatenate([[0.0], np.cumsum(values[:-1] * widths)])
+
+    def integral(x):
+        j = np.searchsorted(switches, x, side="right") - 1
+        inside = j >= 0
+        found = np.zeros_like(x, dtype=float)
+        found[inside] = area[j[inside]] + values[j[inside]] * (x[inside] - switches[j[inside]])
+        return found
+
+    total = integral(ends)
+    return np.diff(total) / np.diff(ends)
 
 
 def part(experiment, first: int, last: int, name: str, open_loop: bool = False):
@@ -79,15 +105,11 @@ def part(experiment, first: int, last: int, name: str, open_loop: bool = False):
     start = dict(experiment.start) if first == 0 else {**{k: v for k, v in experiment.start.items()
                                                           if k not in ("theta0", "theta1", "dtheta0", "dtheta1", "i")},
                                                        **measured_state(experiment, first)}
-    loop = experiment.loop
-    if loop is not None and not open_loop:
-        loop = replace(loop, reference=None if loop.reference is None else loop.reference[keep],
-                       feedforward=None if loop.feedforward is None else loop.feedforward[keep])
-    else:
-        loop = None
+    loop = experiment.loop.cut(keep) if experiment.loop is not None and not open_loop else None
     return replace(experiment, name=name, t=experiment.t[keep], inputs=Frozen(inputs),
                    outputs=Frozen(outputs), start=Frozen(start), loop=loop,
-                   alias=experiment.alias or experiment.name)
+                   alias=experiment.alias or experiment.name,
+                   late=None if experiment.late is None else experiment.late[keep])
 
 
 def split(experiment, fraction: float):
@@ -97,10 +119,8 @@ def split(experiment, fraction: float):
     fitted = replace(experiment, t=experiment.t[:cut],
                      inputs=Frozen({k: v if np.isscalar(v) else v[:cut] for k, v in experiment.inputs.items()}),
                      outputs=Frozen({k: replace(m, values=m.values[:cut]) for k, m in experiment.outputs.items()}),
-                     loop=None if experiment.loop is None else replace(
-                         experiment.loop,
-                         reference=None if experiment.loop.reference is None else experiment.loop.reference[:cut],
-                         feedforward=None if experiment.loop.feedforward is None else experiment.loop.feedforward[:cut]))
+                     loop=None if experiment.loop is None else experiment.loop.cut(slice(None, cut)),
+                     late=None if experiment.late is None else experiment.late[:cut])
     return fitted, part(experiment, cut, experiment.samples, f"{experiment.name}-held-out")
 
 

@@ -432,11 +432,13 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
         # from it later must say its own start: identify/experiment.py refuses these where
         # the data contradict them)
         "start": {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
-        "rig": {"board": board.name, "controller": kept or name, "period": period, "status": status},
+        "rig": {"board": board.name, "controller": kept or name, "period": period, "status": status,
+                # the plant file it ran on (name and content): replay uses it unless told another
+                "plant": plant.path.name, "plant_sha256": content_sha256(plant)},
     }
     if kept is not None:  # the loop that ran, for a replay that closes it again
         experiment["loop"] = {"controller": kept, "reference": "r", "rate_filter": rate_filter,
-                              "counts": int(counts)}
+                              "counts": int(counts), "late": "late", "compute": "compute"}
         if limits.voltage is not None:
             experiment["loop"]["voltage"] = limits.voltage
         delay = getattr(board, "settings", {}).get("delay")  # known for the virtual board only

@@ -184,12 +184,13 @@ class VirtualBoard(Board):
                    "read and driven as a QUBE's board (options: fast, to run it as fast as it can; "
                    "delay=SECONDS, 0.001 by default; amplifier=VOLTS, 15 by default; pendulum=RAD, "
                    "the pendulum held that far from hanging at the start, for a free swing; upright=RAD, "
-                   "the pendulum held that far from upright at the start, for a balance-only run)")
+                   "the pendulum held that far from upright at the start, for a balance-only run; late=SECONDS, "
+                   "with fast, each sample up to that late, in whole 0.5 ms steps)")
     has_current = True
 
     def __init__(self, plant, *, paced: bool = True, log: Path | None = None, amplifier: float = AMPLIFIER,
                  delay: float = DELAY, step: float = STEP, seed: int = 0, overrides: dict | None = None,
-                 hanging: bool = True, lifted: bool = False):
+                 hanging: bool = True, lifted: bool = False, late: float = 0.0):
         from furuta_cosim.fmu.exporter import build_fmu
 
         self.plant = plant
@@ -201,6 +202,7 @@ class VirtualBoard(Board):
             start.setdefault("theta1_start", math.pi)
         self.arguments = (str(build_fmu(plant)), start, dict(plant.sensors))
         self.settings = {"amplifier": amplifier, "delay": delay, "step": step, "seed": seed, "lifted": bool(lifted)}
+        self.late = float(late)   # the simulated clock's lateness at most (fast only)
         self.rig: VirtualRig | None = None
         self._process = self._shared = None
 
@@ -220,15 +222,15 @@ class VirtualBoard(Board):
                 paced = False
                 continue
             bounds = {"delay": (0.0, 0.1), "amplifier": (0.1, 1000.0), "pendulum": (-3.0, 3.0),
-                      "upright": (-0.5, 0.5)}.get(name)
+                      "upright": (-0.5, 0.5), "late": (0.0, 0.01)}.get(name)
             try:
                 value = float(text) if equals and bounds else math.nan
             except ValueError:
                 value = math.nan
             if bounds is None or not bounds[0] <= value <= bounds[1]:
                 raise ConfigError([f"board: virtual:{argument}: {item!r}: expected fast, delay=SECONDS "
-                                   "(0 to 0.1), amplifier=VOLTS (0.1 to 1000), pendulum=RAD (-3 to 3) or upright=RAD "
-                                   "(-0.5 to 0.5), "
+                                   "(0 to 0.1), amplifier=VOLTS (0.1 to 1000), pendulum=RAD (-3 to 3), upright=RAD "
+                                   "(-0.5 to 0.5) or late=SECONDS (0 to 0.01, with fast), "
                                    "separated by commas"])
             if name == "pendulum":
                 options.setdefault("overrides", {})["theta1_start"] = math.pi + value
@@ -238,6 +240,9 @@ class VirtualBoard(Board):
                 options["lifted"] = True
                 continue
             options[name] = value
+        if options.get("late") and paced:
+            raise ConfigError([f"board: virtual:{argument}: late=SECONDS makes the simulated clock wake "
+                               "late: it takes fast (a paced board is as late as its machine makes it)"])
         return cls(plant, paced=paced, **options)
 
     # -- the interface ---------------------------------------------------------------------
@@ -335,22 +340,30 @@ class VirtualBoard(Board):
             self._process = None
 
     def clock(self) -> Clock:
-        return Clock() if self.rig is None else _SimulatedClock(self.rig)
+        return Clock() if self.rig is None else _SimulatedClock(self.rig, self.late, self.settings["seed"])
 
     def _signal(self, slot: int) -> None:
         self._shared[slot] += 1.0
 
 
 class _SimulatedClock(Clock):
-    """The virtual rig's own time: waiting for a deadline steps the rig to it."""
+    """The virtual rig's own time: waiting for a deadline steps the rig to it; with ``late``
+    (s) each wait ends a random whole number of the rig's steps after its deadline, up to
+    ``late``, as a busy machine wakes a loop late (``virtual:fast,late=SECONDS``)."""
 
-    def __init__(self, rig: VirtualRig):
+    def __init__(self, rig: VirtualRig, late: float = 0.0, seed: int = 0):
+        import numpy as np
+
         self.rig = rig
+        self.most = int(math.floor(late / rig.step + 1e-9))
+        self.rng = np.random.default_rng([seed, 17])
 
     def now(self) -> float:
         return self.rig.t
 
     def wait_until(self, deadline: float) -> float:
+        if self.most:
+            deadline += self.rig.step * int(self.rng.integers(0, self.most + 1))
         self.rig.advance(deadline)
         return max(self.rig.t, deadline)
 
