@@ -177,10 +177,14 @@ def test_a_tradeoff_run_writes_its_front(tmp_path, capsys):
     assert "- method: bo (expected hypervolume improvement), seed 0" in summary
     # the LQR scored alike is the unit of both criteria
     assert front["baselines"]["lqr-paper"]["criteria"] == {"effort": 1.0, "tracking": 1.0}
-    # the run's report page shows the trade-off beside the convergence
+    # the run's report page shows the trade-off beside the convergence, each scenario's tuned
+    # response beside the baseline's and the best loop's Bode, Nyquist and sensitivity plots
+    responses = sorted((folder / "responses").glob("*.svg"))
+    assert len(responses) == len(json.loads((folder / "summary.json").read_text())["responses"]) >= 1
+    assert sorted(p.name for p in (folder / "loop").glob("*.svg")) == ["bode.svg", "nyquist.svg", "sensitivity.svg"]
     code, _, err = run_cli(capsys, "report", str(folder))
     assert code == 0, err
-    assert (folder / "report.html").read_text().count("<svg") == 2
+    assert (folder / "report.html").read_text().count("<svg") == 2 + len(responses) + 3
 
 
 @pytest.mark.slow

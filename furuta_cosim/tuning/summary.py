@@ -78,7 +78,7 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     levels = {name: b["objective"] for name, b in baselines.items() if b["feasible"]}
     plot_convergence(records, folder / "convergence", levels)
     if best is not None and spec.objective.type != "spectral":
-        document["responses"] = _responses(spec, evaluator, folder, spec.baselines)
+        document["responses"] = _responses(evaluator, folder, spec.baselines)
     if best is not None:
         document["loop"] = _loop(spec, evaluator, folder)
     write_text(folder / "summary.json", dumps(document, indent=2) + "\n")
@@ -86,7 +86,7 @@ def finish(spec, folder, evaluator, records, n_calls, method, seed, clock) -> di
     return document
 
 
-def _responses(spec, evaluator, folder: Path, baselines) -> dict:
+def _responses(evaluator, folder: Path, baselines) -> dict:
     """The best controller's response beside each baseline's, one figure per scenario run
     (``responses/<run>.png`` and .svg); ``{run label: figure path relative to folder}``."""
     from furuta_cosim.controllers import load_controller
