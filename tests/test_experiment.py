@@ -66,11 +66,19 @@ def _write(folder: Path, csv: bytes | str, **keys) -> Path:
 GOOD = "t,v,y\n0,1,0\n0.01,1,0.1\n0.02,1,0.2\n0.03,1,0.3\n"
 
 
+def test_a_footer_outside_the_window_is_never_read(tmp_path):
+    # a logger's last row of NaN (the final state, no action): the window leaves it out
+    path = _write(tmp_path, GOOD + "0.04,nan,NaN\n", window="[0, 0.03]")
+    experiment = load_experiment(path)
+    assert experiment.samples == 4 and np.all(np.isfinite(experiment.outputs["theta0"].values))
+
+
 @pytest.mark.parametrize("csv, keys, expected", [
     ("t,v\n0,1\n0.01,1\n", {}, r"log.csv: line 2: 2 field\(s\), but columns names 3"),
     ("t,v,y\n0,1,0\n0.01,x,1\n", {}, r"log.csv: line 3, column v: not a number \('x'\)"),
-    ("t,v,y\n0,1,0\n0.01,1,nan\n", {}, r"log.csv: line 3, column y: nan is not a finite number"),
-    ("t,v,y\n0,1,0\n0.01,1,inf\n", {}, r"line 3, column y: inf is not a finite number"),
+    ("t,v,y\n0,1,0\n0.01,1,nan\n", {}, r"e.yaml: data: log.csv: line 3, column y: not a finite number; give a window"),
+    ("t,v,y\n0,1,0\n0.01,1,inf\n", {}, r"line 3, column y: not a finite number"),
+    (GOOD + "0.04,nan,0.4\n", {"window": "[0, 0.04]"}, r"e.yaml: window: log.csv: line 6, column v: not a finite number inside the window"),
     ("t,v,y\n0,1,0\n0.02,1,0\n0.01,1,0\n", {}, r"e.yaml: time: log.csv: line 4: time does not increase \(0.02 then 0.01\)"),
     ("t,v,y\n0,1,0\n0.01,1,0\n0.03,1,0\n0.04,1,0\n", {}, r"e.yaml: time: log.csv: line 4: not sampled uniformly"),
     (GOOD, {"window": "[5, 6]"}, r"e.yaml: window: \[5, 6\] s holds 0 sample\(s\) of log.csv"),

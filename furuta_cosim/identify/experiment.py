@@ -218,6 +218,8 @@ def load_experiment(path: str | Path) -> Experiment:
     first, last = _window(check, top.get("window"), t, csv, table[LINE])
     check.done()
     keep = slice(first, last)
+    _finite_within(check, table, _used_columns(top, time_column), keep, csv, "window" in top)
+    check.done()
     t = t[keep]
     if len(t) < 2:
         check.fail("window", f"holds {len(t)} sample(s) of {csv.name}: at least 2 are needed")
@@ -260,6 +262,35 @@ def load_experiment(path: str | Path) -> Experiment:
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
                       start_from=Frozen(start_from), late=late, recorded_on=recorded_on)
+
+
+def _used_columns(top: dict, time_column: str) -> list[str]:
+    """The columns an experiment file reads: its time, each input's and output's, and its
+    loop's reference, feedforward and timing."""
+    used = [time_column]
+    for key in ("inputs", "outputs"):
+        section = top.get(key) if isinstance(top.get(key), dict) else {}
+        used += [e["column"] for e in section.values() if isinstance(e, dict) and isinstance(e.get("column"), str)]
+    loop = top.get("loop") if isinstance(top.get("loop"), dict) else {}
+    used += [loop[k] for k in ("reference", "feedforward", "late", "compute") if isinstance(loop.get(k), str)]
+    return list(dict.fromkeys(used))
+
+
+def _finite_within(check: Checker, table, used: list[str], keep: slice, csv: Path, windowed: bool) -> None:
+    """A column the experiment reads holds a number at every row of its window (a not-finite
+    cell elsewhere, a logger's footer, is never read)."""
+    lines = table[LINE][keep]
+    for name in used:
+        if name not in table:
+            continue
+        bad = np.nonzero(~np.isfinite(table[name][keep]))[0]
+        if len(bad):
+            k = int(bad[0])
+            check.fail("window" if windowed else "data",
+                       f"{csv.name}: line {lines[k]}, column {name}: not a finite number"
+                       + (" inside the window" if windowed else "")
+                       + "; give a window that leaves it out (window: [start, end], s)")
+            return
 
 
 def _timing_column(check: Checker, entry: dict, key: str, table, columns, keep, period: float, csv: Path,
@@ -419,7 +450,8 @@ _NOT_FINITE = {"nan", "inf", "infinity"}
 def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") -> dict[str, np.ndarray]:
     """The CSV's numbers by column; one problem (the first bad row) raises ConfigError.
 
-    Every cell must be an ASCII decimal number. A file of up to ``MAX_CSV_BYTES`` is read
+    Every cell must be an ASCII decimal number, or ``nan``/``inf`` (read as NaN: a logger's
+    footer, say; :func:`load_experiment` refuses one inside the window it uses). A file of up to ``MAX_CSV_BYTES`` is read
     whole and parsed by numpy: about 3.5 times the file's size in memory at most (the bytes,
     numpy's parse, the table and the columns); a bad file is then read again line by line to
     name the first bad line."""
@@ -459,7 +491,7 @@ def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") 
             table = None
         if table is not None and (table.shape[1] != len(columns) or not np.all(np.isfinite(table))
                                   or not _plain_cells(body, delimiter)):
-            table = None
+            table = None   # read again line by line: a not-finite cell becomes NaN there
     if table is None or not len(table):
         # raises at a bad file's first bad line; else numpy could not read what is fine (lines
         # ended by a lone carriage return, say) and this reading is the table
@@ -511,17 +543,19 @@ def _read_slowly(path: Path, raw: bytes, header: int, columns: list[str],
         if len(fields) != len(columns):
             raise ConfigError([f"{path}: line {number}: {len(fields)} field(s), but columns names "
                                f"{len(columns)} ({', '.join(columns)})"])
+        row = []
         for name, cell in zip(columns, fields):
             if cell.strip().lower().lstrip("+-") in _NOT_FINITE:
-                raise ConfigError([f"{path}: line {number}, column {name}: {cell.strip()} is not a "
-                                   "finite number"])
+                row.append(math.nan)   # refused where the experiment uses it (its window)
+                continue
             if not cell.isascii() or not _CELL.fullmatch(cell.encode("ascii")):
                 raise ConfigError([f"{path}: line {number}, column {name}: not a number "
                                    f"({excerpt(cell.strip())}): cells are ASCII decimal numbers"])
             if not math.isfinite(float(cell)):
                 raise ConfigError([f"{path}: line {number}, column {name}: {cell.strip()} is not a "
                                    "finite number (beyond the range of a double)"])
-        rows.append([float(cell) for cell in fields])
+            row.append(float(cell))
+        rows.append(row)
         numbers.append(number)
     if not rows:
         raise ConfigError([f"{path}: no data after the {header} header line(s)"])
