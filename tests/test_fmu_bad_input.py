@@ -3,6 +3,7 @@
 import math
 import zipfile
 
+import numpy as np
 import pytest
 
 from furuta_cosim.cli import main
@@ -55,11 +56,34 @@ def test_non_finite_inputs_are_refused_by_the_fmu(plant, value):
     assert plant.step([0.0, 0.0], 1e-3) == [0.0] * 5
 
 
-def test_a_step_too_large_for_rk4_is_an_error_not_nan(plant):
-    plant.reset({"theta1_start": 0.1})
-    plant.set_io(["V"], STATES)
-    with pytest.raises(FmuError, match=r"integration diverged.*size 1 \(10 substeps\)"):
-        plant.step([0.0], 1.0)
+def test_a_step_too_large_for_rk4_is_an_error_not_nan(tmp_path):
+    # a stiff linear plant (x' = -10^4 x, no time constant known to the glue) at one substep of
+    # 10 ms: RK4 blows up, and the error names the parameter to raise and its value
+    stiff = tmp_path / "stiff.yaml"
+    stiff.write_text("model: linear\nidentifier: Stiff\ntime: continuous\nsubsteps: 1\nA: [[-10000]]\nB: [[1]]\n"
+                     "C: [[1]]\nD: [[0]]\ninputs: [u]\noutputs: [y]\nstates: [x]\nx0: [1]\n")
+    with PlantSession.open(build_fmu(load_plant(stiff))) as session:
+        session.reset()
+        session.set_io(["u"], ["y"])
+        with pytest.raises(FmuError, match=r"integration diverged.*\(1 substeps\).*raise the parameter "
+                                           r"n_substeps \(now 1\) or take a smaller step"):
+            for _ in range(100):
+                session.step([0.0], 0.01)
+
+
+def test_the_substeps_follow_the_armatures_time_constant():
+    # a QUBE with the QUBE-Servo 2's armature (8.4 ohm: L_a / R_a = 0.14 ms) at 4 ms and its
+    # 10 substeps of 0.4 ms: beyond RK4's reach on that mode, so the step is cut finer (12
+    # substeps) and the run is the one 100 substeps give
+    qube = load_plant("qube-servo-3")
+    runs = []
+    for substeps in (10, 100):
+        with PlantSession.open(build_fmu(qube)) as session:
+            session.reset({**dict(qube.parameters), "R_a": 8.4, "theta1_start": 3.0, "n_substeps": substeps})
+            session.set_io(["V"], STATES)
+            runs.append([session.step([1.0 if k < 100 else 0.0], 0.004) for k in range(250)])
+    coarse, fine = (np.array(r) for r in runs)
+    assert abs(coarse - fine).max() < 1e-4 * (1.0 + abs(fine).max())
 
 
 def test_parameters_cannot_change_while_running(plant):

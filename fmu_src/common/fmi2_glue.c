@@ -13,6 +13,11 @@
 #include "fmi2Functions.h"
 #include "model_api.h"
 
+/* the longest RK4 substep on the model's fastest time constant tau, in units of tau (the
+ * stability limit on a decaying mode is 2.785), and the most substeps a step is cut into so */
+#define RK4_REACH 2.5
+#define MAX_AUTO_SUBSTEPS 1000000L
+
 #ifndef DIVERGENCE_BOUND
 /* A state beyond this magnitude means the fixed-step integration has blown up. */
 #define DIVERGENCE_BOUND 1e10
@@ -495,8 +500,14 @@ static fmi2Status advance(Instance *inst, double H) {
     for (j = 0; j < n; j++) model_update(values);
     for (k = 0; k < N_STATES; k++) x[k] = values->r[STATE_VR[k]];
 #else
-    double h;
+    double h, fastest = model_fastest(values);
     n = values->i[SUBSTEPS_VR - INTEGER_VR_OFFSET];
+    /* RK4 is stable on a decaying mode while h / tau < 2.785: a step the plant's substeps
+     * cut too coarsely for its fastest time constant is cut finer (at most MAX_AUTO_SUBSTEPS) */
+    if (fastest > 0.0 && H / (double)n > RK4_REACH * fastest) {
+        double needed = ceil(H / (RK4_REACH * fastest));
+        n = needed > MAX_AUTO_SUBSTEPS ? MAX_AUTO_SUBSTEPS : (long)needed;
+    }
     h = H / (double)n;
     for (k = 0; k < N_STATES; k++) x[k] = values->r[STATE_VR[k]];
     for (j = 0; j < n; j++) {
@@ -511,10 +522,16 @@ static fmi2Status advance(Instance *inst, double H) {
 #endif
     if (states_diverged(x)) {
         inst->s.mode = MODE_ERROR;
+#if MODEL_DISCRETE
+        return fail(inst, "the states diverged in the step from t = %g of size %g (%ld updates): a state left "
+                          "[-%g, %g]", inst->s.time, H, n, DIVERGENCE_BOUND, DIVERGENCE_BOUND);
+#else
         return fail(inst,
                      "the integration diverged in the step from t = %g of size %g (%ld substeps):"
-                     " a state left [-%g, %g]; use more substeps or a smaller step",
-                     inst->s.time, H, n, DIVERGENCE_BOUND, DIVERGENCE_BOUND);
+                     " a state left [-%g, %g]; raise the parameter %s (now %d) or take a smaller step",
+                     inst->s.time, H, n, DIVERGENCE_BOUND, DIVERGENCE_BOUND,
+                     INTEGER_NAMES[SUBSTEPS_VR - INTEGER_VR_OFFSET], values->i[SUBSTEPS_VR - INTEGER_VR_OFFSET]);
+#endif
     }
     model_outputs(values);
     return fmi2OK;

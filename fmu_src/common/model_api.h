@@ -27,6 +27,11 @@ void model_update(ModelValues *values);
 #else
 /* dx = f(x, inputs, parameters); x and dx are ordered as STATE_VR. */
 void model_derivatives(const ModelValues *values, const double *x, double *dx);
+
+/* The model's fastest time constant (s) at these parameters, or 0 when it does not know one:
+ * the glue takes RK4 substeps short enough to integrate it stably, more than the plant's
+ * substep parameter asks where that is too few. */
+double model_fastest(const ModelValues *values);
 #endif
 
 /* Outputs that are not states, from states, inputs and parameters. */

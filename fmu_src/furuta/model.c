@@ -65,6 +65,12 @@ void model_derivatives(const ModelValues *values, const double *x, double *dx) {
     dx[4] = (V - R(R_a) * current - R(M_f) * N * dtheta0) / R(L_a);
 }
 
+/* the armature's electrical time constant L_a / R_a: far faster than the mechanics (0.15 ms on
+ * a QUBE-Servo 3 against tens of ms), it sets the longest stable RK4 substep */
+double model_fastest(const ModelValues *values) {
+    return R(R_a) > 0.0 ? R(L_a) / R(R_a) : 0.0;
+}
+
 void model_outputs(ModelValues *values) { (void)values; }
 
 int model_check(const ModelValues *values, char *message, size_t size) {
