@@ -179,7 +179,7 @@ def cmd_analyze(args) -> int:
             from furuta_cosim.report.loop import plot_loop
 
             written = plot_loop(model, c, args.plot, sampling_period=analysis.sampled.period
-                                if analysis.sampled is not None else None)
+                                if analysis.sampled is not None else None, margins=analysis.running_margins)
             print("wrote " + ", ".join(str(w) for w in written if w.suffix == ".png"), file=sys.stderr)
     # the exit code follows every verdict printed: the sampled loop of a continuous design too
     sampled_ok = analysis.sampled is None or analysis.sampled.stable
@@ -521,6 +521,8 @@ def cmd_replay(args) -> int:
             print(f"note: {line}", file=sys.stderr)
     target = target_for(plant=None if args.fmu else (plant or "furuta"), fmu=args.fmu, mapping=args.mapping)
     document = replay(args.experiments, target, output=args.output, tolerance=args.tolerance)
+    for note in document.get("notes", []):
+        print(f"note: {note}", file=sys.stderr)
     code = 0 if document["reproduced"] else EXIT_FAILED
     if args.json:
         print(dumps(document))

@@ -185,6 +185,13 @@ def test_multiple_shooting_fits_a_log_whose_controller_is_not_known(logs, tmp_pa
     assert not document["verdict"]["trusted"]
     assert any(r.startswith("lqr theta1: replayed whole as `replay` runs it") for r in document["verdict"]["reasons"])
     assert document["whole"]["lqr"]["theta1"]["rms"] > 0.1   # rad: fallen
+    # the log read as one: its figures (the 30 segments one after the other), its verdict's
+    # outputs per log with the segments' median and worst, one printed line per log and output
+    assert document["figures"] == ["lqr-overlay.png", "lqr-residuals.png"]
+    assert sorted(p.name for p in (tmp_path / "fit").glob("*.png")) == ["lqr-overlay.png", "lqr-residuals.png"]
+    theta0 = document["verdict"]["outputs"]["lqr"]["theta0"]
+    assert theta0["segments"]["count"] == 30 and theta0["segments"]["worst"] >= theta0["segments"]["median"]
+    assert not any("@" in name for name in document["verdict"]["outputs"])
 
 
 @pytest.mark.parametrize("change, key, words", [

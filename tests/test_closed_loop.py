@@ -159,3 +159,16 @@ def test_held_means_by_hand():
     # 0 until 0.5, then 1 until 1.5, 2 until 2.0, then 3
     means = held_means(np.array([0.5, 1.5, 2.0]), np.array([1.0, 2.0, 3.0]), np.array([0.0, 1.0, 2.0]))
     assert means.tolist() == pytest.approx([0.5, 1.5, 3.0])
+
+
+def test_replay_says_how_it_runs_a_log_identify_fits_in_segments(run, tmp_path, capsys):
+    data = yaml.safe_load((run / "experiment.yaml").read_text())
+    data["segments"] = 0.5
+    data["data"] = str(run / data["data"])
+    data["loop"]["controller"] = str(run / data["loop"]["controller"])
+    path = tmp_path / "segmented.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    code, out, err = run_cli(capsys, "replay", str(path), "--plant", "qube-servo-3")
+    assert code == 0, err
+    assert ("note: run: segments: 0.5 s is how identify fits it (multiple shooting, each segment from its "
+            "measured state); replay runs its whole window as the log ran (its loop closed)") in err

@@ -56,6 +56,29 @@ def test_segments_of_one_log_are_judged_worse_or_better_as_the_whole_log():
     assert len(reasons) == 1 and reasons[0].startswith("lqr theta0: replays worse")
 
 
+def test_a_log_fitted_in_segments_is_judged_as_one_log():
+    # the issue's case: a log whose median segment replays at 3.7 floors, one segment at 20.8:
+    # the log over all its samples is within the tolerance, and a reason, where there is one,
+    # names the median and the worst segments
+    document = _document(3.7 * QUANTUM, 4.0 * QUANTUM, "chirp@1")
+    for k in range(2, 21):
+        rms = 20.8 if k == 7 else 3.7
+        document["experiments"][f"chirp@{k}"] = {"theta0": dict(document["experiments"]["chirp@1"]["theta0"],
+                                                                rms=rms * QUANTUM)}
+        document["at_start"][f"chirp@{k}"] = {"theta0": {"rms": 30.0 * QUANTUM}}
+        document["data"][f"chirp@{k}"] = {"samples": 100}
+    verdict = judge(document, {})
+    assert verdict["trusted"], verdict["reasons"]
+    entry = verdict["outputs"]["chirp"]["theta0"]
+    assert entry["floors"] == pytest.approx(math.sqrt((19 * 3.7 ** 2 + 20.8 ** 2) / 20))
+    assert entry["segments"]["median_floors"] == pytest.approx(3.7) and entry["segments"]["worst_of"][0] == "chirp@7"
+    assert list(verdict["outputs"]) == ["chirp"]
+    for k in range(2, 21):
+        document["experiments"][f"chirp@{k}"]["theta0"]["rms"] = 25.0 * QUANTUM
+    [reason] = judge(document, {})["reasons"]
+    assert reason.startswith("chirp theta0: replay RMS") and "over its 20 segments (the median segment 25" in reason
+
+
 def test_a_log_fitted_in_segments_must_replay_whole():
     """The issue's case: 3-sample segments each fit while the log, run through, was 121 floors off."""
     document = _document(2.0 * QUANTUM, 4.0 * QUANTUM, "chirp@1")

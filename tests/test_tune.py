@@ -46,6 +46,7 @@ def strip(records):
     return [{k: v for k, v in r.items() if k not in ("wall_time", "worker")} for r in records]
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_history(tmp_path):
     spec = load_spec("paper-spectral")
     for name in ("a", "b"):

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
+import numpy as np
 import yaml
 
 from furuta_cosim.documents import dumps
@@ -65,7 +66,11 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     # reports is the one identify reports for the same plant
     loaded = [with_estimate(e, target) for e in loaded]
     out = output_folder(output) if output is not None else None
-    document = {"plant": target.label, "tolerance": tolerance, "experiments": {}, "far": []}
+    document = {"plant": target.label, "tolerance": tolerance, "experiments": {}, "far": [],
+                "notes": [f"{e.name}: segments: {e.segments:g} s is how identify fits it (multiple shooting, each "
+                          "segment from its measured state); replay runs its whole window as the log ran ("
+                          + ("its loop closed" if e.loop is not None else "open loop on its logged input") + ")"
+                          for e in loaded if e.segments]}
     with open_session(target) as session:
         for experiment in loaded:
             try:
@@ -89,7 +94,7 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                 if not (c["floors"] is not None and c["floors"] <= tolerance):
                     document["far"].append(f"{experiment.name} {output_name}")
             if out is not None:
-                entry["figures"] = [p.name for p in _figures(out, experiment, {target.label: simulated})]
+                entry["figures"] = [p.name for p in _figures(out, experiment.name, [(experiment, {target.label: simulated})])]
             document["experiments"][experiment.name] = entry
     document["reproduced"] = not document["far"] and not any("failure" in e for e in document["experiments"].values())
     if out is not None:
@@ -116,15 +121,40 @@ def _whole_replays(logs, target: Target, values: dict) -> dict:
     return found
 
 
-def _figures(out: Path, experiment: Experiment, simulated: dict) -> list[Path]:
+def _per_log(pairs) -> dict:
+    """``{log: [(experiment, its simulations), ...]}``: a log's segments (``log@k``) together."""
+    found: dict = {}
+    for experiment, simulated in pairs:
+        name = experiment.alias if experiment.alias and "@" in experiment.name else experiment.name
+        found.setdefault(name, []).append((experiment, simulated))
+    return found
+
+
+def _figures(out: Path, name: str, members) -> list[Path]:
+    """A log's overlay and residuals: ``members`` its (experiment, {label: simulated outputs})
+    pairs, its segments (each from its own start) drawn one after the other on the log's time
+    axis, the line broken between them."""
     from furuta_cosim.report.rig import plot_overlay, plot_residuals
 
-    measured = {n: m.values for n, m in experiment.outputs.items()}
-    quantum = {n: 2 * 3 ** 0.5 * m.sigma for n, m in experiment.outputs.items() if m.sigma_from == "quantum"}
-    written = plot_overlay(experiment.t, measured, simulated, out / f"{experiment.name}-overlay",
-                           f"{experiment.name}: measured and simulated")
-    written += plot_residuals(experiment.t, measured, simulated, out / f"{experiment.name}-residuals",
-                              f"{experiment.name}: simulated - measured", quantum)
+    first = members[0][0]
+    gap = [np.array([np.nan])] if len(members) > 1 else []
+
+    def joined(pieces):
+        parts = []
+        for k, piece in enumerate(pieces):
+            parts += ([] if k == 0 else gap) + [np.asarray(piece, dtype=float)]
+        return np.concatenate(parts)
+
+    t = joined([e.t for e, _ in members])
+    measured = {n: joined([e.outputs[n].values for e, _ in members]) for n in first.outputs}
+    labels = list(members[0][1])
+    simulated = {label: {n: joined([runs[label][n] for _, runs in members]) for n in first.outputs}
+                 for label in labels}
+    quantum = {n: 2 * 3 ** 0.5 * m.sigma for n, m in first.outputs.items() if m.sigma_from == "quantum"}
+    segments = f" ({len(members)} segments, each from its measured state)" if len(members) > 1 else ""
+    written = plot_overlay(t, measured, simulated, out / f"{name}-overlay", f"{name}: measured and simulated{segments}")
+    written += plot_residuals(t, measured, simulated, out / f"{name}-residuals",
+                              f"{name}: simulated - measured{segments}", quantum)
     return [p for p in written if p.suffix == ".png"]
 
 
@@ -299,8 +329,9 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
                                 "errors: on a synthetic rig of known truth the estimated angles left a few "
                                 "parameters biased beyond them (docs: Your own rig, Closed-loop logs)")
     document["accepted"] = bool(accept) and not verdict["trusted"]
-    figures_of = [(e, result.simulated[e.name]) for e in result.spec.experiments + result.spec.validation]
-    document["figures"] = [f"{e.name}-{kind}.png" for e, _ in figures_of for kind in ("overlay", "residuals")]
+    figures_of = _per_log([(e, {"start": result.simulated[e.name]["start"], "fitted": result.simulated[e.name]["fit"]})
+                           for e in result.spec.experiments + result.spec.validation])
+    document["figures"] = [f"{name}-{kind}.png" for name in figures_of for kind in ("overlay", "residuals")]
     profiled = any("profile" in p for p in document["parameters"].values())
     if profiled:
         document["figures"].append("profiles.png")
@@ -316,8 +347,8 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
                                 {"file": "plant.yaml", "sha256": _fitted_digest(out / "plant.yaml")})
     write_text(out / "fit.json", dumps(document, indent=2) + "\n")
     (out / CHECKPOINT).unlink(missing_ok=True)
-    for experiment, pair in figures_of:
-        _figures(out, experiment, {"start": pair["start"], "fitted": pair["fit"]})
+    for name, members in figures_of.items():
+        _figures(out, name, members)
     if profiled:
         from furuta_cosim.report.rig import plot_profiles
 
@@ -558,15 +589,15 @@ def summary_text(document: dict, out: Path) -> str:
         lines.append(f"{document['starts']['count']} starts, all at the same optimum")
     for a, b, r in document["not_separable"]:
         lines.append(f"not separable: {a} and {b} (correlation {r:+.3f})")
-    for kind in ("experiments", "validation"):
-        for name, outputs in document[kind].items():
-            for output, c in outputs.items():
-                start = document["at_start"][name][output]["rms"]
-                period = c.get("period", {}).get("error")
-                lines.append(f"{'validation ' if kind == 'validation' else ''}{name} {output}: RMS {start:.4g} -> "
-                             f"{c['rms']:.4g}" + (f" ({c['rms'] * 57.29577951308232:.4g} deg)"
-                                                  if output.startswith("theta") else "")
-                             + ("" if period is None else f", period {100 * period:+.3f} %"))
+    for kind, name, output, start, c in _replays(document):
+        period = c.get("period", {}).get("error")
+        segments = c.get("segments")
+        lines.append(f"{'validation ' if kind == 'validation' else ''}{name} {output}: RMS {start:.4g} -> "
+                     f"{c['rms']:.4g}" + (f" ({c['rms'] * 57.29577951308232:.4g} deg)"
+                                          if output.startswith("theta") else "")
+                     + ("" if period is None else f", period {100 * period:+.3f} %")
+                     + (f" over {segments['count']} segments (median segment {segments['median']:.4g}, worst "
+                        f"{segments['worst']:.4g}: {segments['worst_of'][0]})" if segments else ""))
     lines.append(f"{document['simulations']} simulations in {document['seconds']:.1f} s; "
                  f"plant.yaml, fit.json and report.html in {out}")
     if document.get("profiles"):
@@ -586,6 +617,20 @@ def summary_text(document: dict, out: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _replays(document: dict) -> list[tuple]:
+    """(kind, log, output, RMS at the start values, the fitted comparison) per log and output,
+    the segments of a log fitted by multiple shooting as one log (identify/verdict.py by_log)."""
+    from furuta_cosim.identify.verdict import by_log
+
+    found = []
+    for kind in ("experiments", "validation"):
+        start = by_log({kind: {name: document["at_start"][name] for name in document[kind]},
+                        "data": document.get("data", {})}, kind)
+        for (name, output), c in by_log(document, kind).items():
+            found.append((kind, name, output, start[(name, output)]["rms"], c))
+    return found
+
+
 def report_page(document: dict, out: Path) -> str:
     from furuta_cosim.report.html import figure, markdown_to_html, page
 
@@ -593,13 +638,13 @@ def report_page(document: dict, out: Path) -> str:
     rows = ["| " + " | ".join(table[0]) + " |", "|" + "---|" * len(table[0])]
     rows += ["| " + " | ".join(r) + " |" for r in table[1:]]
     fits = ["| experiment | output | RMS at start | RMS fitted | period error fitted |", "|---|---|---|---|---|"]
-    for kind in ("experiments", "validation"):
-        for name, outputs in document[kind].items():
-            for output, c in outputs.items():
-                start = document["at_start"][name][output]["rms"]
-                period = c.get("period", {}).get("error")
-                fits.append(f"| {name}{' (validation)' if kind == 'validation' else ''} | {output} | "
-                            f"{start:.4g} | {c['rms']:.4g} | {'' if period is None else f'{100 * period:+.3f} %'} |")
+    for kind, name, output, start, c in _replays(document):
+        period = c.get("period", {}).get("error")
+        segments = c.get("segments")
+        shown = name + (f" ({segments['count']} segments, the worst {', '.join(segments['worst_of'])})"
+                        if segments else "")
+        fits.append(f"| {shown}{' (validation)' if kind == 'validation' else ''} | {output} | "
+                    f"{start:.4g} | {c['rms']:.4g} | {'' if period is None else f'{100 * period:+.3f} %'} |")
     pairs = "".join(f"- {a} and {b}: correlation {r:+.3f}, not separable on these data\n"
                     for a, b, r in document["not_separable"]) or "- none above 0.95\n"
     methods = f"Intervals: sandwich, {document['interval_method']}."

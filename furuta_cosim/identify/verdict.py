@@ -66,17 +66,23 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
     against it. ``ranges``: each parameter's physical range (identify/fit.py physical_ranges)."""
     reasons, notes, outputs = [], [], {}
     for kind in ("experiments", "validation"):
-        for name, found in document[kind].items():
-            for output, c in found.items():
-                floor, what = floor_of(c)
-                ratio = c["rms"] / floor if floor > 0 else math.inf
-                outputs.setdefault(name, {})[output] = {"rms": c["rms"], "floor": floor, "floors": ratio}
-                held = " (held out)" if kind == "validation" else ""
-                unit = _UNITS.get(output, "")
-                if not ratio <= tolerance:
-                    reasons.append(
-                        f"{name}{held} {output}: replay RMS {c['rms']:.4g} {unit} is {ratio:.3g} times its "
-                        f"noise floor ({floor:.3g} {unit}, {what}); at most {tolerance:g} is accepted".replace("  ", " "))
+        for (name, output), c in by_log(document, kind).items():
+            floor, what = floor_of(c)
+            ratio = c["rms"] / floor if floor > 0 else math.inf
+            entry = outputs.setdefault(name, {})[output] = {"rms": c["rms"], "floor": floor, "floors": ratio}
+            segments = c.get("segments")
+            if segments:
+                entry["segments"] = dict(segments, median_floors=segments["median"] / floor,
+                                         worst_floors=segments["worst"] / floor)
+            held = " (held out)" if kind == "validation" else ""
+            unit = _UNITS.get(output, "")
+            if not ratio <= tolerance:
+                over = (f" over its {segments['count']} segments (the median segment "
+                        f"{segments['median'] / floor:.3g} floors, the worst {segments['worst'] / floor:.3g}: "
+                        f"{', '.join(segments['worst_of'])})" if segments else "")
+                reasons.append(
+                    f"{name}{held} {output}: replay RMS {c['rms']:.4g} {unit}{over} is {ratio:.3g} times its "
+                    f"noise floor ({floor:.3g} {unit}, {what}); at most {tolerance:g} is accepted".replace("  ", " "))
     for name, found in (document.get("whole") or {}).items():
         # a log fitted in segments, run through as `replay` runs it
         if "failure" in found:
@@ -129,6 +135,35 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
     step = _next_step(reasons, document)
     return {"trusted": not reasons, "tolerance": tolerance, "reasons": reasons, "notes": notes,
             "outputs": outputs, "next": step}
+
+
+def by_log(document: dict, kind: str) -> dict:
+    """``{(log, output): comparison}`` of a fit.json section (``experiments`` or
+    ``validation``), the segments of a log fitted by multiple shooting (``log@k``) as one log:
+    the RMS over all their samples, and ``segments`` (their count, median and worst RMS, the
+    three worst by name)."""
+    samples = {name: d.get("samples", 1) for name, d in document.get("data", {}).items()}
+    groups: dict = {}
+    for name, found in document[kind].items():
+        log = name.split("@")[0] if "@" in name else name
+        for output, c in found.items():
+            groups.setdefault((log, output), []).append((name, c))
+    found = {}
+    for (log, output), members in groups.items():
+        if len(members) == 1 and "@" not in members[0][0]:
+            found[(log, output)] = members[0][1]
+            continue
+        weights = [samples.get(name, 1) for name, _ in members]
+        pooled = math.sqrt(sum(w * c["rms"] ** 2 for w, (_, c) in zip(weights, members)) / sum(weights))
+        ordered = sorted(members, key=lambda m: m[1]["rms"])
+        rms = [c["rms"] for _, c in ordered]
+        middle = len(rms) // 2
+        median = rms[middle] if len(rms) % 2 else 0.5 * (rms[middle - 1] + rms[middle])
+        kept = {k: members[0][1][k] for k in ("sigma", "sigma_from", "quantum", "chatter") if k in members[0][1]}
+        found[(log, output)] = dict(kept, rms=pooled, segments={
+            "count": len(members), "median": median, "worst": rms[-1],
+            "worst_of": [name for name, _ in reversed(ordered[-3:])]})
+    return found
 
 
 def _worse(document: dict) -> list[str]:

@@ -129,7 +129,7 @@ def _loop(spec, evaluator, folder: Path) -> dict | None:
         return {"problem": "no margins: the loop is unstable on the design model, or has several inputs"}
     from furuta_cosim.report.loop import plot_loop
 
-    plot_loop(model, c, folder / "loop", sampling_period=sampling, title=f"{spec.name} best")
+    plot_loop(model, c, folder / "loop", sampling_period=sampling, title=f"{spec.name} best", margins=margins)
     return {"margins": margins.as_dict(), "margins_of": analysis.margins_of, "text": margins.text(
         model.time_unit, f"Margins of the loop that runs ({analysis.margins_of})"),
         "figures": ["loop/bode.png", "loop/nyquist.png", "loop/sensitivity.png"]}
