@@ -39,7 +39,7 @@ MAX_CONTROLLER_BYTES = 10_000_000   # a loop's controller file (YAML of gains an
 UNIFORM_TOLERANCE = 0.01
 LINE = "\0line"  # read_csv's entry for the line number of each row in the file
 _KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
-         "outputs", "start", "parameters", "delimiter", "rig", "loop", "segments")
+         "outputs", "start", "parameters", "delimiter", "rig", "loop", "segments", "resample")
 _LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "voltage", "counts", "delay",
               "late", "compute")
 _LAW_KEYS = ("K", "F", "period")
@@ -217,8 +217,13 @@ def load_experiment(path: str | Path) -> Experiment:
     t = table[time_column]
     first, last = _window(check, top.get("window"), t, csv, table[LINE])
     check.done()
+    if "resample" in top:
+        table, first, last = _resampled(check, top, table, time_column, first, last, csv)
+        t = table[time_column]
+        check.done()
     keep = slice(first, last)
-    _finite_within(check, table, _used_columns(top, time_column), keep, csv, "window" in top)
+    _finite_within(check, table, _used_columns(top, time_column), keep, csv, "window" in top,
+                   resampled="resample" in top)
     check.done()
     t = t[keep]
     if len(t) < 2:
@@ -264,6 +269,65 @@ def load_experiment(path: str | Path) -> Experiment:
                       start_from=Frozen(start_from), late=late, recorded_on=recorded_on)
 
 
+def _resampled(check: Checker, top: dict, table: dict, time_column: str, first: int, last: int,
+               csv: Path) -> tuple[dict, int, int]:
+    """``resample:`` a log whose clock jitters (a ROS log: 2 ms nominal, 1.5 to 4.8 ms apart) put
+    on a uniform grid of ``period`` s over its window: outputs interpolated linearly, inputs
+    and the loop's reference and feedforward held from their last sample (as a command is), an
+    interval between two samples longer than ``gap`` (10 periods by default) refused with its
+    time; with ``fill: true`` a column's empty cells (interleaved topics: each row holds one
+    topic's fields) take the last value before them first. Returns (the new table, 0, its
+    length)."""
+    entry = top["resample"]
+    if isinstance(entry, (int, float)) and not isinstance(entry, bool):
+        entry = {"period": entry}
+    section = check.mapping(entry, "resample", required=("period",), optional=("period", "gap", "fill"))
+    if not section or "period" not in section:
+        return table, first, last
+    period = check.number(section["period"], "resample.period", positive=True, maximum=10.0)
+    gap = check.number(section.get("gap", 10 * (period or 1.0)), "resample.gap", positive=True, maximum=1e6)
+    fill = section.get("fill", False)
+    if not isinstance(fill, bool):
+        check.fail("resample.fill", f"expected true or false, got {excerpt(str(fill))}")
+    if period is None or gap is None or not isinstance(fill, bool):
+        return table, first, last
+    columns = [k for k in table if k != LINE]
+    if fill:
+        for name in columns:
+            values = np.asarray(table[name], dtype=float).copy()
+            known = np.isfinite(values)
+            index = np.where(known, np.arange(len(values)), 0)
+            np.maximum.accumulate(index, out=index)
+            filled = values[index]
+            filled[~np.maximum.accumulate(known)] = np.nan   # nothing before: stays empty
+            table = {**table, name: filled}
+    t = np.asarray(table[time_column][first:last], dtype=float)
+    steps = np.diff(t)
+    if np.any(steps > gap):
+        k = int(np.argmax(steps > gap))
+        check.fail("resample.gap", f"{csv.name}: line {table[LINE][first + k + 1]}: {steps[k]:g} s without a "
+                                   f"sample (from t = {t[k]:g} s), more than the {gap:g} s a gap may last")
+        return table, first, last
+    grid = t[0] + period * np.arange(int(math.floor((t[-1] - t[0]) / period + 1e-9)) + 1)
+    held = set()
+    for key in ("inputs",):
+        section_of = top.get(key) if isinstance(top.get(key), dict) else {}
+        held |= {e["column"] for e in section_of.values() if isinstance(e, dict) and isinstance(e.get("column"), str)}
+    loop = top.get("loop") if isinstance(top.get("loop"), dict) else {}
+    held |= {loop[k] for k in ("reference", "feedforward") if isinstance(loop.get(k), str)}
+    before = np.clip(np.searchsorted(t, grid + 1e-12 * period, side="right") - 1, 0, len(t) - 1)
+    found = {LINE: np.asarray(table[LINE][first:last])[before]}
+    for name in columns:
+        values = np.asarray(table[name][first:last], dtype=float)
+        if name == time_column:
+            found[name] = grid
+        elif name in held:
+            found[name] = values[before]
+        else:
+            found[name] = np.interp(grid, t, values)
+    return found, 0, len(grid)
+
+
 def _used_columns(top: dict, time_column: str) -> list[str]:
     """The columns an experiment file reads: its time, each input's and output's, and its
     loop's reference, feedforward and timing."""
@@ -276,7 +340,8 @@ def _used_columns(top: dict, time_column: str) -> list[str]:
     return list(dict.fromkeys(used))
 
 
-def _finite_within(check: Checker, table, used: list[str], keep: slice, csv: Path, windowed: bool) -> None:
+def _finite_within(check: Checker, table, used: list[str], keep: slice, csv: Path, windowed: bool,
+                   resampled: bool = False) -> None:
     """A column the experiment reads holds a number at every row of its window (a not-finite
     cell elsewhere, a logger's footer, is never read)."""
     lines = table[LINE][keep]
@@ -289,7 +354,8 @@ def _finite_within(check: Checker, table, used: list[str], keep: slice, csv: Pat
             check.fail("window" if windowed else "data",
                        f"{csv.name}: line {lines[k]}, column {name}: not a finite number"
                        + (" inside the window" if windowed else "")
-                       + "; give a window that leaves it out (window: [start, end], s)")
+                       + ("; an empty cell of a topic logged on other rows: resample with fill: true"
+                          if resampled else "; give a window that leaves it out (window: [start, end], s)"))
             return
 
 
@@ -594,7 +660,7 @@ def _uniform(check: Checker, t: np.ndarray, csv: Path, lines: np.ndarray) -> flo
         k = int(np.argmax(off))
         check.fail("time", f"{csv.name}: line {lines[k + 1]}: not sampled uniformly: the step "
                            f"before it is {steps[k]:g} s, the others {typical:g} s "
-                           "(resample the log to a constant period; nothing here resamples)")
+                           "(a clock that jitters: give resample: PERIOD to put it on a uniform grid)")
     return period
 
 
