@@ -198,7 +198,7 @@ def test_interleaved_topics_are_held_forward_when_asked(tmp_path):
     rows = []
     for k in range(100):
         a = 0.001 * k
-        rows.append((a, 2.0 if k % 2 == 0 else "nan", "nan" if k % 2 == 0 else f"{0.5 * a:.6f}"))
+        rows.append((a, 2.0 if k % 2 == 0 else "", "nan" if k % 2 == 0 else f"{0.5 * a:.6f}"))
     rows[0] = (0.0, 2.0, 0.0)
     experiment = load_experiment(_jittered(tmp_path, rows, "resample: {period: 0.002, fill: true}\n"))
     assert np.all(experiment.input_at("V") == 2.0)

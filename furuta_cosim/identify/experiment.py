@@ -516,8 +516,9 @@ _NOT_FINITE = {"nan", "inf", "infinity"}
 def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") -> dict[str, np.ndarray]:
     """The CSV's numbers by column; one problem (the first bad row) raises ConfigError.
 
-    Every cell must be an ASCII decimal number, or ``nan``/``inf`` (read as NaN: a logger's
-    footer, say; :func:`load_experiment` refuses one inside the window it uses). A file of up to ``MAX_CSV_BYTES`` is read
+    Every cell must be an ASCII decimal number, or ``nan``/``inf`` or empty (read as NaN: a
+    logger's footer, a topic logged on other rows; :func:`load_experiment` refuses one inside
+    the window it uses). A file of up to ``MAX_CSV_BYTES`` is read
     whole and parsed by numpy: about 3.5 times the file's size in memory at most (the bytes,
     numpy's parse, the table and the columns); a bad file is then read again line by line to
     name the first bad line."""
@@ -611,7 +612,7 @@ def _read_slowly(path: Path, raw: bytes, header: int, columns: list[str],
                                f"{len(columns)} ({', '.join(columns)})"])
         row = []
         for name, cell in zip(columns, fields):
-            if cell.strip().lower().lstrip("+-") in _NOT_FINITE:
+            if cell.strip().lower().lstrip("+-") in _NOT_FINITE or not cell.strip():
                 row.append(math.nan)   # refused where the experiment uses it (its window)
                 continue
             if not cell.isascii() or not _CELL.fullmatch(cell.encode("ascii")):
