@@ -512,15 +512,15 @@ def cmd_replay(args) -> int:
     from furuta_cosim.identify.replay import target_for
     from furuta_cosim.identify.run import replay
 
-    plant = args.plant
+    plant, line = args.plant, ""
     if plant is None and not args.fmu:
         from furuta_cosim.identify.replay import recorded_plant
 
         plant, line = recorded_plant(args.experiments)
-        if line:
-            print(f"note: {line}", file=sys.stderr)
     target = target_for(plant=None if args.fmu else (plant or "furuta"), fmu=args.fmu, mapping=args.mapping)
     document = replay(args.experiments, target, output=args.output, tolerance=args.tolerance)
+    if line:   # said once the logs are read: a bad log is one line, its own
+        print(f"note: {line}", file=sys.stderr)
     for note in document.get("notes", []):
         print(f"note: {note}", file=sys.stderr)
     code = 0 if document["reproduced"] else EXIT_FAILED

@@ -172,3 +172,14 @@ def test_replay_says_how_it_runs_a_log_identify_fits_in_segments(run, tmp_path, 
     assert code == 0, err
     assert ("note: run: segments: 0.5 s is how identify fits it (multiple shooting, each segment from its "
             "measured state); replay runs its whole window as the log ran (its loop closed)") in err
+
+
+def test_a_recorded_plant_that_is_a_path_is_refused(run, tmp_path, capsys):
+    data = yaml.safe_load((run / "experiment.yaml").read_text())
+    data["rig"]["plant"] = "../../elsewhere/plant.yaml"
+    data["data"] = str(run / data["data"])
+    data["loop"]["controller"] = str(run / data["loop"]["controller"])
+    path = tmp_path / "moved.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    line = one_line(capsys, "replay", str(path))
+    assert "rig.plant: '../../elsewhere/plant.yaml': expected a plant file's name" in line and "--plant" in line

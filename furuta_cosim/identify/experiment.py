@@ -145,8 +145,6 @@ class Experiment:
     start_from: Mapping[str, str] = field(default_factory=lambda: Frozen({}))
     # s after each row's time that its outputs were read (a rig's `late` column; None: on time)
     late: np.ndarray | None = None
-    # the plant file a rig run recorded it on: (its name, its content's sha256), from `rig.plant`
-    recorded_on: tuple | None = None
 
     @property
     def read_at(self) -> np.ndarray:
@@ -242,14 +240,10 @@ def load_experiment(path: str | Path) -> Experiment:
         segments = check.number(top["segments"], "segments", positive=True, maximum=1e6)
         if segments is not None and segments < 3 * period:
             check.fail("segments", f"{segments:g} s is shorter than 3 samples ({period:g} s each)")
-    recorded_on = None
     if "rig" in top:  # what `rig run` records of the run (its board, controller, period, plant)
         rig = check.mapping(top["rig"], "rig", optional=tuple(top["rig"]) if isinstance(top["rig"], dict) else ())
-        if rig and "plant" in rig:
-            plant_name = check.string(rig["plant"], "rig.plant")
-            digest_of = rig.get("plant_sha256", "")
-            if plant_name is not None:
-                recorded_on = (plant_name, str(digest_of) if isinstance(digest_of, str) else "")
+        if rig and "plant" in rig:   # replay runs it there (identify/replay.py recorded_plant)
+            check.string(rig["plant"], "rig.plant")
     for state in start:
         if f"{state}_start" in parameters:  # one of the two would be dropped without a word
             check.fail(f"parameters.{state}_start", f"sets the start of {state}, which start.{state} "
@@ -266,7 +260,7 @@ def load_experiment(path: str | Path) -> Experiment:
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
-                      start_from=Frozen(start_from), late=late, recorded_on=recorded_on)
+                      start_from=Frozen(start_from), late=late)
 
 
 def _resampled(check: Checker, top: dict, table: dict, time_column: str, first: int, last: int,

@@ -20,7 +20,7 @@ from typing import Iterator, Mapping
 
 import numpy as np
 
-from furuta_cosim.config import Frozen
+from furuta_cosim.config import Frozen, excerpt
 from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.identify.experiment import Experiment, Free
 from furuta_cosim.signals import start_parameter
@@ -99,16 +99,26 @@ def recorded_plant(paths) -> tuple[str | None, str]:
     """(the plant a set of logs was recorded on, a line saying so) when every log is a rig
     run's experiment file naming the same plant (``rig.plant``), found beside the log or among
     the shipped plants; (None, "") when they name none or different ones. A plant found by
-    name whose content is not the one the run used is named in the line."""
+    name whose content is not the one the run used is named in the line. Only the experiment
+    files are read here (not their logs): :func:`load_experiment` checks them whole after."""
+    from furuta_cosim.config import load_yaml
     from furuta_cosim.fmu.plants import content_sha256, load_plant
-    from furuta_cosim.identify.experiment import load_experiment
 
     found = set()
     for path in paths:
-        experiment = load_experiment(path)
-        if experiment.recorded_on is None:
+        try:
+            data = load_yaml(path)
+        except ConfigError:
+            return None, ""   # load_experiment names the problem
+        rig = data.get("rig") if isinstance(data, dict) else None
+        name = rig.get("plant") if isinstance(rig, dict) else None
+        digest = rig.get("plant_sha256", "") if isinstance(rig, dict) else ""
+        if not isinstance(name, str) or not name:
             return None, ""
-        found.add((experiment.recorded_on, experiment.path.parent))
+        if "/" in name or "\\" in name or name.startswith("."):
+            raise ConfigError([f"{path}: rig.plant: {excerpt(name)}: expected a plant file's name (rig run writes "
+                               "its file name, never a path); give the plant with --plant"])
+        found.add(((name, digest if isinstance(digest, str) else ""), Path(path).resolve().parent))
     names = {name for (name, _), _ in found}
     if len(names) != 1:
         return None, ""

@@ -103,7 +103,9 @@ def judge(rows: np.ndarray, period: float, plant, signs: tuple[float, float]) ->
             checks["arm"] = {"verdict": "wrong", "says": f"turned by hand the way a positive voltage turns it, "
                                                          f"theta0 went to {peak:+.2f} rad: set "
                                                          f"{key('arm_sign', -signs[0])} in the plant file"}
-    swing = np.array([_wrapped(v - math.pi) for v in theta1])
+    from furuta_cosim.swingup import wrap
+
+    swing = np.array([wrap(v - math.pi) for v in theta1])
     span = max(2, int(round(SMOOTH / period)))
     if not len(swing) or np.max(np.abs(swing)) < SWUNG:
         checks["pendulum"] = {"verdict": "unsure", "says": "the pendulum did not swing (at most "
@@ -177,7 +179,3 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
     if len(a) < 10 or np.std(a) == 0 or np.std(b) == 0:
         return None
     return float(np.corrcoef(a, b)[0, 1])
-
-
-def _wrapped(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
