@@ -201,25 +201,31 @@ class Evaluator:
         """``{run label: Trace}`` of ``controller`` (a candidate's matrices, or a swing-up
         file) on every scenario and plant variant, run as the objective runs it (the prefilter
         of each scenario's tracked output), every run to its end: for the figures of a run."""
-        from furuta_cosim.controllers import ControllerFile
         from furuta_cosim.cosim import compile_controller, evaluate
-        from furuta_cosim.design.prefilter import prefilter
 
         found = {}
         for label, prepared, _ in self.runs():
-            if isinstance(controller, ControllerFile):
-                cfile = controller
-            else:
-                try:
-                    F = prefilter(self.model, controller, prepared.tracked)
-                except DesignError:
-                    continue
-                cfile = ControllerFile(controller, self.spec.period, self.spec.model, prepared.tracked, F)
+            try:
+                cfile = self.file_for(controller, prepared)
+            except DesignError:
+                continue
             try:
                 found[label] = evaluate(prepared, self._session(prepared), compile_controller(prepared, cfile)).trace
             except (ConfigError, FmuError):
                 continue
         return found
+
+    def file_for(self, controller, prepared):
+        """The controller file a run scores: a swing-up file as it is (its balance's own
+        prefilter), a candidate's matrices with the prefilter of the run's tracked output
+        (DesignError when it has none)."""
+        from furuta_cosim.controllers import ControllerFile
+        from furuta_cosim.design.prefilter import prefilter
+
+        if isinstance(controller, ControllerFile):
+            return controller
+        F = prefilter(self.model, controller, prepared.tracked)
+        return ControllerFile(controller, self.spec.period, self.spec.model, prepared.tracked, F)
 
     def prefilters(self, controller: GeneralizedController) -> dict[str, float]:
         """The prefilter F of ``controller`` for each output the spec's runs track."""
@@ -232,9 +238,7 @@ class Evaluator:
 
     def _scenarios(self, controller: GeneralizedController, constraints: dict,
                    slacks: list, order=None, early: bool = False) -> Outcome:
-        from furuta_cosim.controllers import ControllerFile
         from furuta_cosim.cosim import compile_controller, evaluate
-        from furuta_cosim.design.prefilter import prefilter
 
         spec, penalty = self.spec, self.spec.constraints.penalty
         early = early and spec.constraints.stop_early is not None
@@ -243,14 +247,10 @@ class Evaluator:
         runs = self.ordered(order)
         for position, (label, prepared, _) in enumerate(runs):
             session = self._session(prepared)
-            if isinstance(controller, ControllerFile):  # a swing-up file: its balance's own prefilter
-                cfile = controller
-            else:
-                try:
-                    F = prefilter(self.model, controller, prepared.tracked)
-                except DesignError as error:
-                    return Outcome(penalty * 2, False, constraints, metrics, f"{label}: no prefilter: {error}")
-                cfile = ControllerFile(controller, spec.period, spec.model, prepared.tracked, F)
+            try:
+                cfile = self.file_for(controller, prepared)
+            except DesignError as error:
+                return Outcome(penalty * 2, False, constraints, metrics, f"{label}: no prefilter: {error}")
             limits = self.limits(label, prepared) if early else None
             try:
                 result = evaluate(prepared, session, compile_controller(prepared, cfile), limits=limits)
