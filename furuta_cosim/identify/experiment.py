@@ -25,6 +25,7 @@ from furuta_cosim.config import Checker, Frozen, excerpt, load_yaml, plain_name
 from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
+from furuta_cosim.identify.laws import LinearLaw, is_linear, read_law
 from furuta_cosim.measurement import RATE_FILTER
 
 # unit -> factor to SI (rad, rad/s, A, V, s): value_SI = (value + offset) * factor
@@ -70,6 +71,15 @@ class Free:
 
 
 @dataclass(frozen=True)
+class Delayed:
+    """An input whose delay (s) the fit chooses within ``free.bounds``; ``before``: the
+    logged samples before the window (0 where the log has none), which a delay brings in."""
+
+    free: Free
+    before: np.ndarray
+
+
+@dataclass(frozen=True)
 class Loop:
     """The controller that ran while a log was recorded, as the replay closes it again: its
     file (and the file's sha256), or for a log from another tool a state-feedback ``law``
@@ -94,6 +104,8 @@ class Loop:
     estimate: bool = False
     # s from each sample's reading to its command's write (a rig's `compute` column; None: 0)
     compute: np.ndarray | None = None
+    # a law in the logger's own words (identify/laws.py): references and measurements to command
+    linear: "LinearLaw | None" = None
 
     def cut(self, keep: slice) -> "Loop":
         """The loop over the samples ``keep`` of its log's window."""
@@ -103,7 +115,8 @@ class Loop:
             return None if values is None else values[keep]
 
         return replace(self, reference=part(self.reference), feedforward=part(self.feedforward),
-                       compute=part(self.compute))
+                       compute=part(self.compute),
+                       linear=None if self.linear is None else self.linear.cut(keep))
 
     def controller_file(self):
         """The ControllerFile the replay runs: the file's, or the law's as a static controller."""
@@ -119,6 +132,8 @@ class Loop:
                               tracked_output="theta0", F=F)
 
     def describe(self) -> str:
+        if self.linear is not None:
+            return self.linear.words
         return self.controller.name if self.law is None else f"the law K = {list(self.law[0])}"
 
 
@@ -145,6 +160,8 @@ class Experiment:
     start_from: Mapping[str, str] = field(default_factory=lambda: Frozen({}))
     # s after each row's time that its outputs were read (a rig's `late` column; None: on time)
     late: np.ndarray | None = None
+    # inputs whose delay is fitted: kept as logged in ``inputs`` (identify/fit.py)
+    delays: Mapping[str, Delayed] = field(default_factory=lambda: Frozen({}))
 
     @property
     def read_at(self) -> np.ndarray:
@@ -160,16 +177,25 @@ class Experiment:
         name) and sensor biases (``<output>.bias``)."""
         found = {name: value for name, value in self.start.items() if isinstance(value, Free)}
         found.update({f"{name}.bias": m.bias for name, m in self.outputs.items() if m.bias is not None})
+        found.update({f"{name}.delay": d.free for name, d in self.delays.items()})
         return found
 
     def corrected(self, simulated: Mapping[str, np.ndarray], values: Mapping[str, float]) -> dict:
         """The simulated outputs as the sensors would read them: plus each fitted bias."""
         return {name: y + values.get(f"{self.alias or self.name}.{name}.bias", 0.0) for name, y in simulated.items()}
 
-    def input_at(self, name: str) -> np.ndarray:
-        """The input over every sample of the window (a constant repeated)."""
+    def input_at(self, name: str, values: Mapping[str, float] | None = None) -> np.ndarray:
+        """The input over every sample of the window (a constant repeated); an input whose
+        delay is fitted, delayed by its value in ``values`` (its start without)."""
         value = self.inputs[name]
-        return np.full(self.samples, float(value)) if np.isscalar(value) else value
+        if np.isscalar(value):
+            return np.full(self.samples, float(value))
+        delayed = self.delays.get(name)
+        if delayed is None:
+            return value
+        seconds = (values or {}).get(f"{self.alias or self.name}.{name}.delay", delayed.free.start)
+        m = len(delayed.before)
+        return shifted(np.concatenate([delayed.before, value]), seconds / self.period)[m:]
 
     def truncated(self, seconds: float) -> "Experiment":
         """The first ``seconds`` of the window (at least two samples): the growing-horizon fit
@@ -228,13 +254,14 @@ def load_experiment(path: str | Path) -> Experiment:
         check.fail("window", f"holds {len(t)} sample(s) of {csv.name}: at least 2 are needed")
         check.done()
     period = _uniform(check, t, csv, table[LINE][keep])
-    inputs = _inputs(check, top.get("inputs", {}), table, columns, keep, period)
+    delays: dict = {}
+    inputs = _inputs(check, top.get("inputs", {}), table, columns, keep, period, delays)
     outputs = _outputs(check, top["outputs"], table, columns, keep)
     # a stated start is checked against the data where the window cuts the log after its first
     # row: a log's own first row is where its logger knew the state (a rig run starts at rest)
     start, start_from = _start(check, top.get("start", {}), outputs, t, cut=first > 0)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
-    loop = _loop(check, top["loop"], path, table, columns, keep, period, csv) if "loop" in top else None
+    loop = _loop(check, top, path, table, columns, keep, period, csv) if "loop" in top else None
     segments = 0.0
     if "segments" in top:
         segments = check.number(top["segments"], "segments", positive=True, maximum=1e6)
@@ -260,7 +287,7 @@ def load_experiment(path: str | Path) -> Experiment:
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
-                      start_from=Frozen(start_from), late=late)
+                      start_from=Frozen(start_from), late=late, delays=Frozen(delays))
 
 
 def _resampled(check: Checker, top: dict, table: dict, time_column: str, first: int, last: int,
@@ -384,12 +411,12 @@ def _timing_column(check: Checker, entry: dict, key: str, table, columns, keep, 
     return values
 
 
-def _loop(check: Checker, value, path: Path, table, columns, keep, period: float, csv: Path) -> Loop | None:
-    """``loop:``: the controller file (beside the experiment file) or a state-feedback law, the
-    reference and feedforward columns, the rates' filter, the voltage limit, the encoders'
-    counts, the delay (the keys ``rig run`` writes, and ``law``/``feedforward`` for a log from
-    another tool)."""
-    entry = check.mapping(value, "loop", optional=_LOOP_KEYS)
+def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: float, csv: Path) -> Loop | None:
+    """``loop:``: the controller file (beside the experiment file) or a law (state feedback, or
+    in the logger's own words: identify/laws.py), the reference and feedforward columns, the
+    rates' filter, the voltage limit, the encoders' counts, the delay (the keys ``rig run``
+    writes, and ``law``/``feedforward`` for a log from another tool)."""
+    entry = check.mapping(top["loop"], "loop", optional=_LOOP_KEYS)
     if entry is None:
         return None
     if ("controller" in entry) == ("law" in entry):
@@ -414,7 +441,7 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
                 if problem:
                     check.fail("loop.controller", f"{controller}: not a controller file ({problem})")
                     controller = None
-    else:
+    elif not is_linear(entry["law"]):
         law = _law(check, entry["law"], period)
         digest = hashlib.sha256(repr(law).encode()).hexdigest()
 
@@ -442,10 +469,26 @@ def _loop(check: Checker, value, path: Path, table, columns, keep, period: float
         check.fail("loop.delay", f"{delay:g} s is more than {MAX_DELAY_SAMPLES} samples of the log "
                                  f"({period:g} s each)")
     check.done()
-    if law is None and controller is None:
+    linear = None
+    if "law" in entry and is_linear(entry["law"]):
+        outputs = top.get("outputs") if isinstance(top.get("outputs"), dict) else {}
+        signal = (top.get("inputs") or {}).get("V") if isinstance(top.get("inputs"), dict) else None
+        command = _conversion(signal)[1:] if isinstance(signal, dict) else (1.0, 0.0)
+        linear = read_law(check, entry["law"], period, table, columns, keep,
+                          {n: _conversion(e) for n, e in outputs.items() if isinstance(e, dict)}, command,
+                          voltage, feedforward, csv.name, table[LINE])
+        check.done()
+        digest = hashlib.sha256(repr((linear.A, linear.B, linear.C, linear.D, linear.sources)).encode()).hexdigest()
+    if law is None and controller is None and linear is None:
         return None
     return Loop(controller, digest, reference, float(rate), None if voltage is None else float(voltage),
-                float(counts), float(delay), law, feedforward, compute=compute)
+                float(counts), float(delay), law, feedforward, compute=compute, linear=linear)
+
+
+def _conversion(spec: dict) -> tuple[str, float, float]:
+    """(column, factor, offset) of a signal already checked: SI = (column + offset) * factor."""
+    factor = UNITS[spec["unit"]] if "unit" in spec else float(spec["scale"])
+    return str(spec["column"]), float(factor), float(spec.get("offset", 0.0))
 
 
 def _not_a_controller(path: Path) -> str | None:
@@ -700,8 +743,23 @@ def _signal(check: Checker, entry, key: str, table, columns, keep, extra=()) -> 
     return (table[column][keep] + offset) * factor, abs(factor), section
 
 
-def _inputs(check: Checker, value, table, columns, keep, period: float = 0.0) -> dict:
+def shifted(values: np.ndarray, samples: float) -> np.ndarray:
+    """``values`` (held over each sample) as they arrive ``samples`` samples later (0 before
+    the first): a whole number of samples moves them; a fraction f of one blends each sample
+    with the one before, (1 - f) now + f before, the mean of the held input over the sample."""
+    whole = int(math.floor(samples + 1e-9))
+    fraction = max(samples - whole, 0.0)
+    now = np.concatenate([np.zeros(min(whole, len(values))), values[:max(len(values) - whole, 0)]])
+    return (1.0 - fraction) * now + fraction * np.concatenate([[0.0], now[:-1]])
+
+
+def _inputs(check: Checker, value, table, columns, keep, period: float = 0.0,
+            delays: dict | None = None) -> dict:
+    """``inputs:`` over the window; an input whose delay is fitted (``delay: {free: [lo,
+    hi]}``) is kept as logged, its samples before the window and its bounds put in
+    ``delays``."""
     section = check.mapping(value, "inputs", optional=tuple(value) if isinstance(value, dict) else ())
+    delays = {} if delays is None else delays
     found = {}
     for name, entry in (section or {}).items():
         key = f"inputs.{name}"
@@ -714,16 +772,27 @@ def _inputs(check: Checker, value, table, columns, keep, period: float = 0.0) ->
         if signal is None:
             continue
         values, _, raw = signal
-        if "delay" in raw:  # the logged value reaches the plant this much later
+        if "delay" in raw and isinstance(raw["delay"], dict):   # fitted: {free: [lo, hi]}
+            entry = check.mapping(raw["delay"], f"{key}.delay", required=("free",))
+            bounds = check.vector(entry.get("free"), f"{key}.delay.free", 2) if entry and "free" in entry else None
+            if bounds is not None and not 0.0 <= bounds[0] < bounds[1]:
+                check.fail(f"{key}.delay.free", f"expected [lo, hi] with 0 <= lo < hi (s), got {bounds}")
+            elif bounds is not None and period and bounds[1] > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
+                check.fail(f"{key}.delay.free", f"{bounds[1]:g} s is more than {MAX_DELAY_SAMPLES} samples of "
+                                                f"the log ({period:g} s each)")
+            elif bounds is not None and period:
+                m = int(math.ceil(bounds[1] / period)) + 1
+                first = keep.start or 0
+                before = np.concatenate([np.zeros(max(m - first, 0)), values[max(first - m, 0):first]])
+                delays[str(name)] = Delayed(Free((float(bounds[0]), float(bounds[1])), float(bounds[0])),
+                                            np.nan_to_num(before, nan=0.0, posinf=0.0, neginf=0.0))
+        elif "delay" in raw:  # the logged value reaches the plant this much later
             delay = check.number(raw["delay"], f"{key}.delay", minimum=0.0)
             if delay is not None and period and delay > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
                 check.fail(f"{key}.delay", f"{delay:g} s is more than {MAX_DELAY_SAMPLES} samples of the log "
                                            f"({period:g} s each)")
             elif delay and period:
-                whole = int(math.floor(delay / period + 1e-9))
-                fraction = delay / period - whole
-                now = np.concatenate([np.zeros(min(whole, len(values))), values[:max(len(values) - whole, 0)]])
-                values = (1.0 - fraction) * now + fraction * np.concatenate([[0.0], now[:-1]])
+                values = shifted(values, delay / period)
         found[str(name)] = values[keep]
     return found
 

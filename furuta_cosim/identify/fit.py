@@ -151,7 +151,7 @@ class Unknown:
 
 
 def unknowns(spec: IdentifySpec, plant_values: Mapping[str, float]) -> list[Unknown]:
-    found = []
+    found, named = [], set()
     for p in spec.free:
         start = p.start if p.start is not None else plant_values.get(p.name)
         if start is None:
@@ -159,12 +159,52 @@ def unknowns(spec: IdentifySpec, plant_values: Mapping[str, float]) -> list[Unkn
         start = min(max(float(start), p.bounds[0]), p.bounds[1])
         found.append(Unknown(p.name, start, p.bounds, _scale(start, p.bounds)))
     for experiment in spec.experiments:
-        for state, free in experiment.free_starts().items():  # states and sensor biases
-            # a sensor's bias is the whole log's, in each of its parts (identify/split.py)
-            owner = (experiment.alias or experiment.name) if state.endswith(".bias") else experiment.name
+        for state, free in experiment.free_starts().items():  # states, sensor biases, delays
+            # a sensor's bias and an input's delay are the whole log's, in each of its parts
+            # (identify/split.py)
+            owner = (experiment.alias or experiment.name) if state.endswith((".bias", ".delay")) else experiment.name
+            if f"{owner}.{state}" in named:   # a delay each of a log's segments shares
+                continue
+            named.add(f"{owner}.{state}")
             found.append(Unknown(f"{owner}.{state}", free.start, free.bounds,
                                  _scale(free.start, free.bounds)))
     return found
+
+
+DELAY_GRID = 11   # a fitted delay's start: the best of at most this many whole-sample delays
+
+
+def _delay_starts(runner, spec, items: list, log) -> list:
+    """``items`` with each fitted delay's start the best of a scan over whole samples within
+    its bounds (at most DELAY_GRID, the other unknowns at their starts): the replay's error is
+    not convex in a delay (an oscillation's period away fits too), so the local fit starts in
+    the right well. The scan's simulations count in the fit's."""
+    from dataclasses import replace
+
+    delays = [k for k, u in enumerate(items) if u.name.endswith(".delay")]
+    if not delays:
+        return items
+    period = min(e.period for e in spec.experiments)
+    problem = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
+    x = np.array([u.start / u.scale for u in items])
+    for k in delays:
+        lo, hi = items[k].bounds
+        grid = np.unique(np.clip(np.linspace(lo, hi, min(DELAY_GRID, int(round((hi - lo) / period)) + 1))
+                                 if (hi - lo) / period > DELAY_GRID - 1 else
+                                 np.arange(math.ceil(lo / period - 1e-9), math.floor(hi / period + 1e-9) + 1) * period,
+                                 lo, hi))
+        grid = grid if len(grid) else np.array([lo])
+        costs = []
+        for value in grid:
+            x[k] = value / items[k].scale
+            r = problem.fun(x)
+            costs.append(0.5 * float(r @ r))
+        best = float(grid[int(np.argmin(costs))])
+        x[k] = best / items[k].scale
+        items[k] = replace(items[k], start=best)
+        log(f"  {items[k].name}: starts at {best * 1000:g} ms, the best of {len(grid)} whole-sample delays "
+            f"from {grid[0] * 1000:g} to {grid[-1] * 1000:g} ms at the start values")
+    return items
 
 
 def _scale(start: float, bounds: tuple[float, float]) -> float:
@@ -456,6 +496,7 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     spec = prepared(spec, target)
     everything = list(spec.experiments) + list(spec.validation)
     runner = Runner(target, everything, workers, dask)
+    items = _delay_starts(runner, spec, items, log)
     points = start_points(items, starts, seed)
     x0 = points[0].copy()
     lower = np.array([u.bounds[0] / u.scale for u in items])

@@ -273,7 +273,7 @@ def simulate(session, target: Target, experiment: Experiment,
     inputs = list(experiment.inputs)
     fmu_out = [target.output(n) for n in names]
     fmu_in = [target.input(n) for n in inputs]
-    columns = [(experiment.input_at(n) - offset) / scale for n, (_, scale, offset) in zip(inputs, fmu_in)]
+    columns = [(experiment.input_at(n, values) - offset) / scale for n, (_, scale, offset) in zip(inputs, fmu_in)]
     u = np.column_stack(columns) if columns else np.zeros((experiment.samples, 0))
     # the outputs go straight into one array, the inputs are read a block at a time: a log of
     # 10^6 samples replays in tens of MB, not in lists of Python floats
@@ -372,32 +372,45 @@ def rebuilt_command(experiment: Experiment, readings: Mapping[str, np.ndarray] |
     voltage. ``readings`` replaces logged outputs (another reading of a column: identify/
     precheck.py loop_hint). On a log of the loop it names, this is the logged command to
     rounding; a column read in the wrong unit, sign or zero, or another loop, shows."""
-    from furuta_cosim.measurement import RateFilter
-
     loop = experiment.loop
     if loop is None or "V" not in experiment.inputs or np.isscalar(experiment.inputs["V"]):
         return None
-    runtime = _runtime(loop, experiment.period)
-    runtime.reset()
     n = experiment.samples
     values = {name: m.values for name, m in experiment.outputs.items()}
     values.update(readings or {})
     zeros = np.zeros(n)
     a0, a1, current = (values.get(name, zeros) for name in ("theta0", "theta1", "i"))
-    reference = loop.reference if loop.reference is not None else zeros
     feedforward = loop.feedforward if loop.feedforward is not None else zeros
-    rates = RateFilter(experiment.period, loop.rate_filter)
+    command = _commander(loop, experiment)
     found = np.zeros(n)
     for k in range(n):
-        r0, r1 = rates((float(a0[k]), float(a1[k])))
-        found[k] = float(runtime.control([float(a0[k]), r0, float(a1[k]), r1, float(current[k])],
-                                         float(reference[k]))) + float(feedforward[k])
+        found[k] = command(k, float(a0[k]), float(a1[k]), float(current[k])) + float(feedforward[k])
     if loop.voltage is not None:
         found = np.clip(found, -loop.voltage, loop.voltage)
     return found
 
 
 _RUNTIMES: dict = {}   # (controller file or law, its sha256, period) -> (file, runtime), in this process
+
+
+def _commander(loop, experiment: Experiment):
+    """A function (k, theta0, theta1, i as the controller saw them, SI) -> its command (V,
+    before the feedforward) at sample k of the window, its state from the window's start: the
+    loop's own law, or its controller with the rates by the loop's filter."""
+    if loop.linear is not None:
+        step = loop.linear.stepper()
+        return lambda k, a0, a1, current: step(k, {"theta0": a0, "theta1": a1, "i": current})
+    from furuta_cosim.measurement import RateFilter
+
+    runtime = _runtime(loop, experiment.period)
+    runtime.reset()
+    rates = RateFilter(experiment.period, loop.rate_filter)
+    reference = loop.reference if loop.reference is not None else np.zeros(experiment.samples)
+
+    def command(k, a0, a1, current):
+        r0, r1 = rates((a0, a1))
+        return float(runtime.control([a0, r0, a1, r1, current], float(reference[k])))
+    return command
 
 
 def _runtime(loop, period: float):
@@ -427,11 +440,10 @@ def closed_loop(session, target: Target, experiment: Experiment,
     counts, the encoders' zero moved by ``phase`` counts (:func:`chatter`)."""
     import math as _math
 
-    from furuta_cosim.measurement import RateFilter, counted
+    from furuta_cosim.measurement import counted
 
     loop = experiment.loop
-    runtime = _runtime(loop, experiment.period)
-    runtime.reset()
+    command = _commander(loop, experiment)
     names = list(experiment.outputs)
     seen = ["theta0", "theta1", "i"]
     fmu_out = [target.output(n) for n in names + seen]
@@ -439,10 +451,8 @@ def closed_loop(session, target: Target, experiment: Experiment,
     n = experiment.samples
     raw = np.full((n, len(names)), np.nan)
     volts = np.zeros(n)
-    reference = loop.reference if loop.reference is not None else np.zeros(n)
     feedforward = loop.feedforward if loop.feedforward is not None else np.zeros(n)
     per_count = 2.0 * _math.pi / loop.counts
-    rates = RateFilter(experiment.period, loop.rate_filter)
     limit, h = loop.voltage, experiment.period
     noise = None
     if loop.estimate:
@@ -478,8 +488,7 @@ def closed_loop(session, target: Target, experiment: Experiment,
             else:
                 shift = phase * per_count
                 a0, a1 = counted(theta0, shift, per_count), counted(theta1, _math.pi + shift, per_count)
-            r0, r1 = rates((a0, a1))
-            u = float(runtime.control([a0, r0, a1, r1, current], float(reference[k]))) + float(feedforward[k])
+            u = command(k, a0, a1, current) + float(feedforward[k])
             if limit is not None:
                 u = max(-limit, min(limit, u))
             volts[k] = u

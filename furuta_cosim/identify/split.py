@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from furuta_cosim.config import Frozen
+from furuta_cosim.identify.experiment import shifted
 
 RATE_WINDOW = 0.025     # s on each side of a sample: the quadratic that gives a rate
 _RATES = {"theta0": "dtheta0", "theta1": "dtheta1"}
@@ -64,11 +65,7 @@ def delayed(experiment):
             at = read + (loop.compute if loop.compute is not None else 0.0) + loop.delay
             inputs["V"] = held_means(np.maximum.accumulate(at), written, read)
         else:
-            whole = int(np.floor(loop.delay / experiment.period + 1e-9))
-            fraction = loop.delay / experiment.period - whole
-            now = np.concatenate([np.zeros(min(whole, len(written))), written[:max(len(written) - whole, 0)]])
-            before = np.concatenate([[0.0], now[:-1]])
-            inputs["V"] = (1.0 - fraction) * now + fraction * before
+            inputs["V"] = shifted(written, loop.delay / experiment.period)
     return replace(experiment, inputs=Frozen(inputs), loop=None)
 
 
@@ -106,7 +103,10 @@ def part(experiment, first: int, last: int, name: str, open_loop: bool = False):
                                                           if k not in ("theta0", "theta1", "dtheta0", "dtheta1", "i")},
                                                        **measured_state(experiment, first)}
     loop = experiment.loop.cut(keep) if experiment.loop is not None and not open_loop else None
-    return replace(experiment, name=name, t=experiment.t[keep], inputs=Frozen(inputs),
+    # a fitted delay brings in the samples before the part: the log's own, within the window
+    delays = {k: replace(d, before=np.concatenate([d.before, experiment.inputs[k]])[first:first + len(d.before)])
+              for k, d in experiment.delays.items()}
+    return replace(experiment, name=name, t=experiment.t[keep], inputs=Frozen(inputs), delays=Frozen(delays),
                    outputs=Frozen(outputs), start=Frozen(start), loop=loop,
                    alias=experiment.alias or experiment.name,
                    late=None if experiment.late is None else experiment.late[keep])

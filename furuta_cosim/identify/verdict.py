@@ -207,6 +207,8 @@ def read_intervals(document: dict, ranges: dict, why: str = "not profiled") -> N
             continue
         lo, hi = p["interval"]
         bound_lo, bound_hi = p["bounds"]
+        # an initial state, a sensor's bias or an input's delay is never profiled
+        reason = why if "." not in name else "only plant parameters are profiled"
         low, high, strict = ranges.get(name, (None, None, False)) if "." not in name else (None, None, False)
         wrong = []
         if "." not in name and lo <= 0.0 <= hi:
@@ -219,10 +221,10 @@ def read_intervals(document: dict, ranges: dict, why: str = "not profiled") -> N
         if high is not None and hi > high:
             wrong.append(f"reaches above {high:g}")
         p["identifiable"] = not wrong
-        p["rests_on"] = f"its sandwich interval ({why})"
-        p["verdict"] = (f"identifiable by its sandwich interval ({why})" if not wrong else
+        p["rests_on"] = f"its sandwich interval ({reason})"
+        p["verdict"] = (f"identifiable by its sandwich interval ({reason})" if not wrong else
                         f"practically not identifiable: its sandwich interval [{lo:.4g}, {hi:.4g}] "
-                        f"{' and '.join(wrong)} ({why})")
+                        f"{' and '.join(wrong)} ({reason})")
 
 
 def _next_step(reasons: list[str], document: dict) -> str:

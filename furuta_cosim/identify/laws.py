@@ -1,0 +1,332 @@
+"""A foreign loop in its own words: the controller another lab's logger ran, as its code wrote it.
+
+A log recorded under someone else's controller is replayed with that controller closed
+again (identify/replay.py). Their controller is rarely our state feedback: a PD on the errors
+to two references, with a filtered derivative discretized by backward Euler, say. An
+experiment's ``loop.law`` states it in the logger's own terms, and it is kept as what every
+such law is, a discrete linear system from its inputs (the references it read from the log
+and the measurements it saw) to its command:
+
+    x[k+1] = A x[k] + B v[k],    u[k] = C x[k] + D v[k]
+
+``v`` and ``u`` are in the log's own units, signs and offsets: a measured output as its
+column holds it (before the experiment's unit, scale and offset bring it to SI), a reference
+as its column holds it, the command as the column of the input ``V`` holds it. Two forms:
+
+    law:                               # PID terms, each on the error to its reference
+      terms:
+        theta0: {reference: arm_ref, kp: 2.0, kd: 0.1}
+        theta1: {reference: 0.0, kp: -30.0, kd: -2.5}
+      error: reference - measurement   # or measurement - reference
+      derivative: {on: error, cutoff: 50, method: backward}   # rad/s; backward, forward, bilinear
+      output: u_pd                     # the controller's own logged output: checked at load
+
+    law:                               # any discrete linear law, at the log's period
+      A: [[...]]  B: [[...]]  C: [[...]]  D: [[...]]
+      inputs: [arm_ref, theta0, theta1]   # an output's name: as measured; else a log column
+
+The state-feedback form (``K``, ``F``) stays in experiment.py; python-control discretizes
+the derivative and integral terms (``sample_system``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from furuta_cosim.config import Checker, Frozen, excerpt
+from furuta_cosim.defaults import MAX_MAGNITUDE
+
+# the discretizations a logger's code uses, by the names engineers call them
+METHODS = {"backward": "backward_diff", "forward": "euler", "bilinear": "bilinear"}
+ERRORS = ("reference - measurement", "measurement - reference")
+MEASURED = ("theta0", "theta1", "i")      # what a law may see of the plant
+AGREE = 0.01                              # of the logged output's range: a law that rebuilds it
+MAX_ORDER = 50                            # a law's states at most
+TERMS_KEYS = ("terms", "error", "derivative", "integral", "output")
+STATE_SPACE_KEYS = ("A", "B", "C", "D", "inputs", "output")
+_TERM_KEYS = ("reference", "kp", "ki", "kd")
+_DERIVATIVE_KEYS = ("on", "cutoff", "method")
+_INTEGRAL_KEYS = ("method",)
+
+
+@dataclass(frozen=True)
+class LinearLaw:
+    """A discrete linear law over ``sources`` (measured outputs, or columns of the log read
+    over the window into ``columns``), in the log's own units: ``measured[j]`` is the
+    (factor, offset) that brings source j's column to SI (None for a column), ``command`` the
+    same for the command. ``x0``: its state at the window's start."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    sources: tuple
+    measured: tuple
+    columns: Mapping[str, np.ndarray]
+    command: tuple
+    words: str
+    x0: np.ndarray | None = None
+    logged: np.ndarray | None = None   # the window's sources as the log holds them (rows)
+
+    def stepper(self):
+        """A function (k, {output: SI value}) -> the command in volts, from ``x0``; one per run."""
+        x = np.zeros(self.A.shape[0]) if self.x0 is None else self.x0.copy()
+        factor, offset = self.command
+        A, B, C, D = self.A, self.B, self.C[0], self.D[0]
+        lookup = [(s, conversion) for s, conversion in zip(self.sources, self.measured)]
+
+        def step(k: int, seen: Mapping[str, float]) -> float:
+            nonlocal x
+            v = np.array([seen[s] / c[0] - c[1] if c is not None else self.columns[s][k]
+                          for s, c in lookup])
+            u = float(C @ x + D @ v)
+            x = A @ x + B @ v
+            return (u + offset) * factor
+        return step
+
+    def cut(self, keep: slice) -> "LinearLaw":
+        """The law over the samples ``keep`` of its window, its state at their first the one
+        it reaches on the logged samples before them."""
+        from dataclasses import replace
+
+        first = keep.start or 0
+        x0 = self.x0 if first == 0 or self.logged is None else self.respond(self.logged[:first], self.x0)[1]
+        return replace(self, columns=Frozen({k: v[keep] for k, v in self.columns.items()}), x0=x0,
+                       logged=None if self.logged is None else self.logged[keep])
+
+    def respond(self, v: np.ndarray, x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(the command in the log's units, the final state) over rows of ``v`` (sources in
+        the log's units)."""
+        x = np.zeros(self.A.shape[0]) if x0 is None else x0.copy()
+        u = np.empty(len(v))
+        A, B, C, D = self.A, self.B, self.C[0], self.D[0]
+        for k, row in enumerate(v):
+            u[k] = C @ x + D @ row
+            x = A @ x + B @ row
+        return u, x
+
+
+def is_linear(entry) -> bool:
+    """Whether ``loop.law`` is in this module's forms (terms, or a state space)."""
+    return isinstance(entry, dict) and ("terms" in entry or "A" in entry or "D" in entry)
+
+
+def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
+             outputs: Mapping[str, tuple], command: tuple, voltage: float | None,
+             feedforward: np.ndarray | None, csv_name: str, lines) -> LinearLaw | None:
+    """``loop.law`` in its terms or state-space form, checked, with its state at the
+    window's start (run over the log's rows before the window) and, when it names
+    ``output``, checked against that column over the window. ``outputs``: the experiment's
+    measured outputs as (column, factor, offset), SI = (column + offset) * factor;
+    ``command``: the same (factor, offset) for the command."""
+    state_space = "terms" not in entry
+    keys = STATE_SPACE_KEYS if state_space else TERMS_KEYS
+    entry = check.mapping(entry, "loop.law", required=("A", "B", "C", "D", "inputs") if state_space
+                          else ("terms",), optional=keys)
+    if entry is None or any(k not in entry for k in (("A", "B", "C", "D", "inputs") if state_space else ("terms",))):
+        return None
+    conversions = {name: (factor, offset) for name, (_, factor, offset) in outputs.items()}
+    built = (_state_space(check, entry, conversions, columns) if state_space
+             else _terms(check, entry, period, conversions, columns))
+    if built is None:
+        return None
+    A, B, C, D, sources, constants, words = built
+    if A.shape[0] > MAX_ORDER:
+        check.fail("loop.law.A", f"{A.shape[0]} states: at most {MAX_ORDER}")
+        return None
+    whole = {}
+    for s in sources:
+        if s in constants:
+            whole[s] = np.full(len(table[columns[0]]), constants[s])
+        elif s in conversions:
+            whole[s] = table[outputs[s][0]]
+        else:
+            whole[s] = table[s]
+    law = LinearLaw(A, B, C, D, tuple(sources), tuple(conversions.get(s) for s in sources),
+                    Frozen({s: whole[s][keep].copy() for s in sources if s not in conversions}),
+                    command, words, logged=np.column_stack([whole[s][keep] for s in sources]))
+    # the state the law reached on the log's rows before the window (from the last row that
+    # is not a number, a header's or a gap's): its filters do not restart where the window cuts
+    first = keep.start or 0
+    if first > 0:
+        rows = np.column_stack([whole[s][:first] for s in sources])
+        finite = np.all(np.isfinite(rows), axis=1)
+        begin = int(len(finite) - np.argmin(finite[::-1])) if not finite.all() else 0
+        _, x0 = law.respond(rows[begin:])
+        from dataclasses import replace
+
+        law = replace(law, x0=x0)
+    if "output" in entry:
+        name = check.string(entry["output"], "loop.law.output")
+        if name is not None and name not in columns:
+            check.fail("loop.law.output", f"{excerpt(name)} is not one of columns ({', '.join(columns)})")
+        elif name is not None:
+            _agrees(check, law, law.logged, table[name][keep], name, voltage, feedforward, csv_name, lines[keep])
+    return law
+
+
+def _terms(check: Checker, entry: dict, period: float, conversions, columns):
+    """The PID terms as (A, B, C, D, sources, constant references, words)."""
+    import control
+
+    terms = check.mapping(entry["terms"], "loop.law.terms", optional=MEASURED)
+    if not terms:
+        if terms is not None:
+            check.fail("loop.law.terms", f"names no output: give the terms on {', '.join(MEASURED)}")
+        return None
+    error = check.string(entry.get("error", ERRORS[0]), "loop.law.error", ERRORS)
+    derivative = check.mapping(entry.get("derivative", {}), "loop.law.derivative", optional=_DERIVATIVE_KEYS) or {}
+    on = check.string(derivative.get("on", "error"), "loop.law.derivative.on", ("error", "measurement"))
+    method = check.string(derivative.get("method", "backward"), "loop.law.derivative.method", tuple(METHODS))
+    cutoff = None
+    if "cutoff" in derivative:
+        cutoff = check.number(derivative["cutoff"], "loop.law.derivative.cutoff", positive=True, maximum=1e6)
+    integral = check.mapping(entry.get("integral", {}), "loop.law.integral", optional=_INTEGRAL_KEYS) or {}
+    i_method = check.string(integral.get("method", "backward"), "loop.law.integral.method", tuple(METHODS))
+    if None in (error, on, method, i_method):
+        return None
+    sign = 1.0 if error == ERRORS[0] else -1.0   # the measurement's sign in the error is -sign
+    dz = _derivative(cutoff, method, period)
+    iz = control.sample_system(control.tf([1.0], [1.0, 0.0]), period, method=METHODS[i_method])
+    blocks, sources, constants, words = [], [], {}, []
+    for name, term in terms.items():
+        key = f"loop.law.terms.{name}"
+        term = check.mapping(term, key, optional=_TERM_KEYS)
+        if term is None:
+            continue
+        if name not in conversions:
+            check.fail(key, f"the law acts on {name}, which is not one of outputs "
+                            f"({', '.join(conversions) or 'none'}): the law sees a measured output")
+            continue
+        gains = {k: check.number(term.get(k, 0.0), f"{key}.{k}") for k in ("kp", "ki", "kd")}
+        if any(g is None for g in gains.values()):
+            continue
+        if any(abs(g) > MAX_MAGNITUDE for g in gains.values()):
+            check.fail(key, f"expected gains of magnitude at most {MAX_MAGNITUDE:g}")
+            continue
+        reference = term.get("reference", 0.0)
+        if isinstance(reference, str):
+            if reference not in columns:
+                check.fail(f"{key}.reference", f"{excerpt(reference)} is not one of columns ({', '.join(columns)})")
+                continue
+            ref = reference
+        else:
+            value = check.number(reference, f"{key}.reference")
+            if value is None:
+                continue
+            ref = f"{name} reference"
+            constants[ref] = value
+        if gains["kd"] and dz is None:
+            check.fail("loop.law.derivative.cutoff", "a forward-Euler derivative needs a filter (cutoff, "
+                                                     "rad/s): unfiltered it uses the next sample")
+            return None
+        for source in (ref, name):
+            if source not in sources:
+                sources.append(source)
+        r, y = sources.index(ref), sources.index(name)
+        # u += kp e + ki I(e) + kd D(e or the measurement's part of e), e = sign (r - y)
+        for gain, system, on_reference in ((gains["kp"], None, True), (gains["ki"], iz, True),
+                                           (gains["kd"], dz, on == "error")):
+            if gain:
+                blocks.append((y, -sign * gain, system))
+                if on_reference:
+                    blocks.append((r, sign * gain, system))
+        words.append(f"{name}: kp {gains['kp']:g}, ki {gains['ki']:g}, kd {gains['kd']:g} on "
+                     f"{reference if isinstance(reference, str) else f'{reference:g}'}")
+    check.done()
+    A, B, C, D = _assembled(blocks, len(sources))
+    what = "derivative on the " + on + (f", filtered at {cutoff:g} rad/s" if cutoff else ", unfiltered") \
+        + f", {method}"
+    return A, B, C, D, sources, constants, f"the PID law ({'; '.join(words)}; {what})"
+
+
+def _derivative(cutoff: float | None, method: str, period: float):
+    """The discrete derivative: s (filtered: s cutoff / (s + cutoff)) by ``method``; None when
+    it is not causal (forward Euler of an unfiltered derivative)."""
+    import control
+
+    if cutoff is None:
+        if method == "forward":
+            return None
+        if method == "backward":   # (1 - z^-1) / T
+            return control.tf([1.0, -1.0], [period, 0.0], period)
+        return control.tf([2.0, -2.0], [period, period], period)   # bilinear: 2 (z - 1) / (T (z + 1))
+    return control.sample_system(control.tf([cutoff, 0.0], [1.0, cutoff]), period, method=METHODS[method])
+
+
+def _assembled(blocks, inputs: int):
+    """One state space from blocks (source, gain, discrete tf or None for a static gain),
+    their outputs summed."""
+    import control
+
+    parts = []
+    D = np.zeros((1, inputs))
+    for source, gain, system in blocks:
+        if system is None:
+            D[0, source] += gain
+            continue
+        ss = control.ss(system)
+        parts.append((source, gain, np.atleast_2d(ss.A), np.atleast_2d(ss.B), np.atleast_2d(ss.C),
+                      float(np.atleast_2d(ss.D)[0, 0])))
+    n = sum(p[2].shape[0] for p in parts)
+    A, B, C = np.zeros((n, n)), np.zeros((n, inputs)), np.zeros((1, n))
+    row = 0
+    for source, gain, a, b, c, d in parts:
+        m = a.shape[0]
+        A[row:row + m, row:row + m] = a
+        B[row:row + m, source] = b[:, 0]
+        C[0, row:row + m] = gain * c[0]
+        D[0, source] += gain * d
+        row += m
+    return A, B, C, D
+
+
+def _state_space(check: Checker, entry: dict, conversions, columns):
+    """The general form: (A, B, C, D, sources, {}, words)."""
+    sources = check.names(entry["inputs"], "loop.law.inputs")
+    if sources is None:
+        return None
+    for s in sources:
+        if s not in conversions and s not in columns:
+            check.fail("loop.law.inputs", f"{excerpt(s)} is neither one of outputs ({', '.join(conversions) or 'none'}) "
+                                          f"nor one of columns ({', '.join(columns)})")
+    m = len(sources)
+    D = check.matrix(entry["D"], "loop.law.D", rows=1, cols=m)
+    A = check.matrix(entry["A"], "loop.law.A") if entry["A"] != [] else []
+    n = len(A) if A else 0
+    if A and len(A[0]) != n:
+        check.fail("loop.law.A", f"expected a square matrix, got {n} rows of {len(A[0])}")
+        return None
+    B = check.matrix(entry["B"], "loop.law.B", rows=n, cols=m) if n else []
+    C = check.matrix(entry["C"], "loop.law.C", rows=1, cols=n) if n else []
+    check.done()
+    A = np.array(A, dtype=float).reshape(n, n)
+    B = np.array(B, dtype=float).reshape(n, m)
+    C = np.array(C, dtype=float).reshape(1, n)
+    return A, B, C, np.array(D, dtype=float), list(sources), {}, f"the law of {n} states on {', '.join(sources)}"
+
+
+def _agrees(check: Checker, law: LinearLaw, rows: np.ndarray, output: np.ndarray, name: str,
+            voltage, feedforward, csv_name: str, lines) -> None:
+    """The law, run on what the log recorded over the window (``rows``: its sources as
+    logged), against the controller's own logged ``output``: beyond AGREE of its range, one
+    line naming the first sample that disagrees."""
+    u, _ = law.respond(rows, law.x0)
+    factor, offset = law.command
+    found = (u + offset) * factor + (0.0 if feedforward is None else feedforward)
+    logged = (output + offset) * factor
+    if voltage is not None:
+        found, logged = np.clip(found, -voltage, voltage), np.clip(logged, -voltage, voltage)
+    span = float(np.max(logged) - np.min(logged)) or max(float(np.max(np.abs(logged))), 1e-12)
+    apart = np.abs(found - logged)
+    if np.max(apart) > AGREE * span:
+        k = int(np.argmax(apart > AGREE * span))
+        check.fail("loop.law", f"{csv_name}: line {int(lines[k])}: the law gives {found[k]:.6g} where "
+                               f"the controller logged {logged[k]:.6g} in {name} ({apart[k] / span:.1%} of its "
+                               f"range, at most {AGREE:.0%}; largest {np.max(apart) / span:.1%}): the law as "
+                               "stated is not the one that ran (a gain, a sign, the error's sense, the "
+                               "derivative's filter or discretization)")
+

@@ -1,0 +1,185 @@
+"""Logs as other labs record them: a foreign loop stated in its own words, a fitted input
+delay, a jittered clock fitted as a uniform one (synthetic logs of known truth:
+furuta_cosim/identify/foreign.py, whose controller and delay are written out by hand)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+import yaml
+
+from furuta_cosim.errors import ConfigError
+from furuta_cosim.identify.experiment import load_experiment
+from furuta_cosim.identify.foreign import CUTOFF, PD_GAINS, PERIOD, chirp_log, pd_log
+from furuta_cosim.identify.replay import compare, open_session, rebuilt_command, simulate, target_for
+
+from helpers import run_cli
+
+
+@pytest.fixture(scope="module")
+def pd(tmp_path_factory):
+    return pd_log(tmp_path_factory.mktemp("pd"), seed=1)
+
+
+def _changed(path, tmp_path, change):
+    data = yaml.safe_load(path.read_text())
+    change(data)
+    target = path.parent / f"changed-{tmp_path.name}.yaml"
+    target.write_text(yaml.safe_dump(data))
+    return target
+
+
+def test_a_lab_s_pd_on_two_errors_rebuilds_its_logged_output_and_replays(pd):
+    experiment = load_experiment(pd)
+    assert "kd -3 on pend_ref" in experiment.loop.describe()
+    rebuilt = rebuilt_command(experiment)
+    # the law stated in the lab's words (degrees, its pendulum sign, backward Euler) against
+    # the lab's own output, computed by a separate hand-written recursion
+    np.testing.assert_allclose(rebuilt, experiment.inputs["V"], rtol=0, atol=1e-9)
+    target = target_for(plant="qube-servo-3")
+    with open_session(target) as session:
+        found = compare(experiment, simulate(session, target, experiment))
+    # the loop closed again on the true plant: the angles within 2 encoder quanta RMS (the
+    # rounding of the encoders drives the difference that remains)
+    for name in ("theta0", "theta1"):
+        assert found[name]["rms"] < 2.0 * found[name]["quantum"], (name, found[name])
+    assert abs(found["theta1"]["period"]["error"]) < 0.02
+
+
+@pytest.mark.parametrize("change, expected", [
+    (lambda d: d["loop"]["law"]["derivative"].update(method="bilinear"), r"line \d+: the law gives"),
+    (lambda d: d["loop"]["law"].update(error="measurement - reference"), r"line 2: the law gives 3.6"),
+    (lambda d: d["loop"]["law"]["derivative"].update(on="measurement"), r"line \d+: the law gives"),
+    (lambda d: d["loop"]["law"]["terms"]["theta1"].update(kd=-2.9), r"line \d+: the law gives"),
+    (lambda d: d["loop"]["law"].update(derivative={"on": "error", "method": "forward"}),
+     "a forward-Euler derivative needs a filter"),
+    (lambda d: d["outputs"].pop("i") and d["loop"]["law"]["terms"].update(i={"kp": 1.0}),
+     "the law acts on i, which is not one of outputs"),
+    (lambda d: d["loop"]["law"]["terms"]["theta0"].update(reference="ref"), r"'ref' is not one of columns"),
+    (lambda d: d["loop"]["law"].update(output="volts"), r"loop.law.output: 'volts' is not one of columns"),
+    (lambda d: d["loop"]["law"]["derivative"].update(method="trapezoid"), "expected one of backward, forward, bilinear"),
+])
+def test_a_law_that_is_not_the_one_that_ran_is_one_line(pd, tmp_path, change, expected):
+    with pytest.raises(ConfigError) as error:
+        load_experiment(_changed(pd, tmp_path, change))
+    assert len(error.value.problems) == 1, error.value.problems
+    assert "loop.law" in error.value.problems[0], error.value.problems[0]
+    assert re.search(expected, error.value.problems[0]), error.value.problems[0]
+
+
+def test_the_same_law_as_a_state_space_gives_the_same_command(pd, tmp_path):
+    # the backward-Euler filtered derivative d_k = a (d_{k-1} + w (e_k - e_{k-1})) written by
+    # hand as a state space with x = [d_{k-1}, e_{k-1}] per error, e = r - y, on
+    # v = [arm_ref, pend_ref, theta0, theta1]
+    a, w = 1.0 / (1.0 + CUTOFF * PERIOD), CUTOFF
+    A = np.zeros((4, 4))
+    B = np.zeros((4, 4))
+    C = np.zeros((1, 4))
+    D = np.zeros((1, 4))
+    for j, (name, r, y) in enumerate((("arm", 0, 2), ("pendulum", 1, 3))):
+        kp, kd = PD_GAINS[name]
+        d, e = 2 * j, 2 * j + 1
+        A[d, d], A[d, e] = a, -a * w                 # d_k from d_{k-1}, e_{k-1}
+        B[d, r], B[d, y] = a * w, -a * w             # and e_k
+        B[e, r], B[e, y] = 1.0, -1.0                 # e_k kept for the next sample
+        C[0, d], C[0, e] = kd * a, -kd * a * w
+        D[0, r] += kp + kd * a * w
+        D[0, y] -= kp + kd * a * w
+
+    def as_state_space(data):
+        data["loop"]["law"] = {"A": A.tolist(), "B": B.tolist(), "C": C.tolist(), "D": D.tolist(),
+                               "inputs": ["arm_ref", "pend_ref", "theta0", "theta1"], "output": "u"}
+
+    experiment = load_experiment(_changed(pd, tmp_path, as_state_space))
+    assert experiment.loop.describe() == "the law of 4 states on arm_ref, pend_ref, theta0, theta1"
+    np.testing.assert_allclose(rebuilt_command(experiment), experiment.inputs["V"], rtol=0, atol=1e-9)
+
+
+def test_a_window_cut_mid_log_starts_the_law_where_the_log_left_it(pd, tmp_path):
+    def cut(data):
+        data["window"] = [2.5, 6.0]
+        data["start"] = {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0}
+
+    experiment = load_experiment(_changed(pd, tmp_path, cut))
+    # the filters' state at 2.5 s is the one the law reaches on the rows before the window:
+    # the output still rebuilds from the window's first sample
+    np.testing.assert_allclose(rebuilt_command(experiment), experiment.inputs["V"], rtol=0, atol=1e-9)
+
+
+def _spec(folder, experiment, free: dict, **extra) -> object:
+    lines = [f"name: {experiment.stem}", "plant: qube-servo-3", f"experiments: [{experiment.name}]", "free:"]
+    lines += [f"  {k}: {{start: {s!r}, bounds: [{lo!r}, {hi!r}]}}" for k, (s, lo, hi) in free.items()]
+    lines += [f"{k}: {v}" for k, v in extra.items()]
+    path = folder / f"{experiment.stem}-spec.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_an_input_s_delay_is_fitted_with_its_interval(tmp_path, capsys):
+    experiment = chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=4)
+    spec = _spec(tmp_path, experiment, {"R_a": (9.0, 1.0, 30.0)})
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles")
+    assert code == 0, (out, err)
+    assert "chirp.V.delay: starts at" in err
+    found = json.loads((tmp_path / "fit" / "fit.json").read_text())["parameters"]
+    delay = found["chirp.V.delay"]
+    assert abs(delay["value"] - 0.012) < 0.001, delay
+    assert delay["interval"][1] - delay["interval"][0] < 0.001
+    assert delay["rests_on"] == "its sandwich interval (only plant parameters are profiled)"
+    assert abs(found["R_a"]["value"] / 7.5 - 1.0) < 0.02
+
+
+def test_a_delay_fitted_in_segments_is_one_unknown_of_the_log(tmp_path):
+    from furuta_cosim.identify.fit import unknowns
+    from furuta_cosim.identify.spec import load_identify_spec
+    from furuta_cosim.identify.split import parts_of
+
+    experiment = chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=0, duration=1.0)
+    data = yaml.safe_load(experiment.read_text())
+    data["segments"] = 0.2
+    experiment.write_text(yaml.safe_dump(data))
+    spec = parts_of(load_identify_spec(_spec(tmp_path, experiment, {"R_a": (7.0, 1.0, 30.0)})))
+    assert len(spec.experiments) == 5
+    names = [u.name for u in unknowns(spec, {"R_a": 7.5})]
+    assert names.count("chirp.V.delay") == 1, names
+    # each segment's delay brings in the log's own samples before it, not zeros
+    third = spec.experiments[2]
+    whole = load_experiment(experiment)
+    m = len(third.delays["V"].before)
+    start = 2 * 100
+    np.testing.assert_array_equal(third.delays["V"].before, whole.inputs["V"][start - m:start])
+    np.testing.assert_allclose(third.input_at("V", {"chirp.V.delay": 0.012}),
+                               whole.input_at("V", {"chirp.V.delay": 0.012})[start:start + third.samples],
+                               rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("bounds, expected", [
+    ([0.02, 0.01], r"expected \[lo, hi\] with 0 <= lo < hi"),
+    ([-0.001, 0.01], r"expected \[lo, hi\] with 0 <= lo < hi"),
+    ([0.0, 0.05], "0.05 s is more than 10 samples"),
+])
+def test_a_delay_s_bounds_are_checked(tmp_path, bounds, expected):
+    experiment = chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=0, duration=0.5)
+    data = yaml.safe_load(experiment.read_text())
+    data["inputs"]["V"]["delay"] = {"free": bounds}
+    experiment.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=f"inputs.V.delay.free: {expected}"):
+        load_experiment(experiment)
+
+
+def test_a_jittered_interleaved_log_fits_as_the_uniform_one(tmp_path):
+    from furuta_cosim.identify.run import identify
+
+    fits = {}
+    for name, jitter in (("uniform", False), ("jittered", True)):
+        experiment = chirp_log(tmp_path, delay=0.012, seed=2, jitter=jitter, name=name)
+        spec = _spec(tmp_path, experiment, {"R_a": (9.0, 1.0, 30.0), "M_f": (0.05, 0.005, 0.2)})
+        identify(spec, tmp_path / name, profiles=False)
+        fits[name] = json.loads((tmp_path / name / "fit.json").read_text())["parameters"]
+    assert load_experiment(tmp_path / "jittered.yaml").period == pytest.approx(PERIOD, rel=1e-9)
+    for parameter in ("R_a", "M_f"):
+        assert math.isclose(fits["jittered"][parameter]["value"], fits["uniform"][parameter]["value"], rel_tol=0.05)
