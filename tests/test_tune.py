@@ -3,6 +3,8 @@
 import json
 import shutil
 
+import numpy as np
+
 import pytest
 
 from furuta_cosim import paths
@@ -330,14 +332,17 @@ def test_a_resumed_history_from_another_optimizer_is_refused(tmp_path):
     """--resume proposes again the design and the batch it continues: a history that is not
     this run's there is refused, and nothing is changed."""
     spec = batched(tmp_path)
-    tune(spec, tmp_path / "run", n_calls=7, workers=1)   # the design, and 2 of batch 0's 3
+    tune(spec, tmp_path / "run", n_calls=12, workers=1)
     path = tmp_path / "run" / "history.jsonl"
     records = history(tmp_path / "run")
-    records[6]["x"][0] = records[6]["x"][0] * 0.5 + 0.1   # not the point this run proposes
+    design = sum(1 for r in records if not r["origin"].startswith("bo"))
+    records = records[:design + 2]   # the design, and 2 of batch 0's 3
+    last = design + 1
+    records[last]["x"][0] = records[last]["x"][0] * 0.5 + 0.1   # not the point this run proposes
     path.write_text("".join(json.dumps(r) + "\n" for r in records))
-    with pytest.raises(ConfigError, match="evaluation 6 of the history is not the point"):
+    with pytest.raises(ConfigError, match=f"evaluation {last} of the history is not the point"):
         tune(spec, tmp_path / "run", n_calls=12, workers=1, resume=True)
-    assert len(history(tmp_path / "run")) == 7
+    assert len(history(tmp_path / "run")) == design + 2
 
 
 def test_baselines_and_initial_controllers_start_the_search(tmp_path):
@@ -351,7 +356,10 @@ def test_baselines_and_initial_controllers_start_the_search(tmp_path):
     document = tune(load_spec(path), tmp_path / "run", n_calls=3, workers=1, log=lines.append)
     records = history(tmp_path / "run")
     assert records[0]["origin"] == "baseline lqr-paper"
-    assert [r["origin"] for r in records[1:]] == ["initial design"] * 2
+    # a budget this small starts around the baseline (tuning/bayesopt.py STARTS)
+    assert [r["origin"] for r in records[1:]] == ["initial design around lqr-paper"] * 2
+    assert "start: around the first baseline, in small trust regions (a budget of 3 evaluations: at most " \
+           "100 start at the baseline)" in lines
     assert any(line.startswith("baseline lqr-paper: in the initial design, as its design (the same "
                                "Q and R on paper-printed, continuous here): gain within") for line in lines)
     assert "initial bo-paper: not in the initial design: Cc: fixed in the search to another matrix" in lines
@@ -362,6 +370,30 @@ def test_baselines_and_initial_controllers_start_the_search(tmp_path):
     assert document["best"]["objective"] <= records[0]["objective"]
     summary = (tmp_path / "run" / "summary.md").read_text()
     assert f"from {document['best']['origin']} (best.yaml, prefilter F = " in summary
+
+
+def test_the_start_follows_the_budget_and_a_resumed_run_keeps_its_own(tmp_path):
+    from furuta_cosim.tuning.bayesopt import BOX_SIDE, FEW_EVALUATIONS
+    from furuta_cosim.tuning.methods import initial_design, start_of
+
+    spec = load_spec("effort")
+    assert start_of(spec, 30) == "baseline" and start_of(spec, FEW_EVALUATIONS) == "baseline"
+    assert start_of(spec, FEW_EVALUATIONS + 1) == "space" and start_of(spec, 150) == "space"
+    # a run begun with one start and extended past the threshold (or cut to below it) keeps it
+    assert start_of(spec, 150, [{"origin": "baseline lqr-paper"},
+                                {"origin": "initial design around lqr-paper"}]) == "baseline"
+    assert start_of(spec, 30, [{"origin": "baseline lqr-paper"}, {"origin": "initial design"}]) == "space"
+    path = tmp_path / "effort-space.yaml"
+    path.write_text(spec.path.read_text().replace("  seed: 0\n", "  seed: 0\n  start: space\n"))
+    assert start_of(load_spec(path), 30) == "space"
+    evaluator = Evaluator(spec)
+    design = initial_design(spec, evaluator, 3, start="baseline")
+    low, high = (np.array(b) for b in zip(*evaluator.space.bounds))
+    center = (np.array(design[0][0]) - low) / (high - low)
+    for x, origin in design[1:]:
+        assert origin == "initial design around lqr-paper"
+        assert np.all(np.abs((np.array(x) - low) / (high - low) - center) <= BOX_SIDE / 2 + 1e-12)
+    assert len(initial_design(spec, evaluator, 3, start="space")) == spec.optimizer.n_initial_points
 
 
 @pytest.mark.slow
@@ -421,7 +453,11 @@ def test_the_summary_says_what_its_headline_number_does_not(tmp_path):
     from furuta_cosim.controllers import load_controller
     from furuta_cosim.design.analysis import analyze
 
-    spec = load_spec("effort")
+    # the space-filling start: its 12-call best is worse than the LQR somewhere (the start at
+    # the baseline's is better on every metric of the summary)
+    path = tmp_path / "effort-space.yaml"
+    path.write_text(load_spec("effort").path.read_text().replace("  seed: 0\n", "  seed: 0\n  start: space\n"))
+    spec = load_spec(path)
     document = tune(spec, tmp_path / "run", n_calls=12, seed=0)
     best, lqr = document["best"], document["baselines"]["lqr-paper"]
     flags = document["flags"]

@@ -66,6 +66,19 @@ LANES = 2
 # scales make it, up to the box)
 OWN_WIDEST = 1.0
 REGIONS = ("trust", "global")
+# where bo starts (optimizer.start): around the spec's first baseline, or over the whole space;
+# auto starts at the baseline for a budget of at most FEW_EVALUATIONS. Measured over 10 seeds
+# on effort (tools/bench_tune.py; docs: Tuning): at 20, 30, 50 and 100 evaluations the start at
+# the baseline reached a median of 1.065, 1.057, 1.052 and 1.023 where the space-filling start
+# reached 1.101, 1.101, 1.086 and 1.048; at 150 the space-filling start's worst seed was better
+# (1.030 against 1.036), so it stays the start of long runs
+STARTS = ("auto", "baseline", "space")
+FEW_EVALUATIONS = 100
+# the start at the baseline: this many points of a Latin hypercube in a box of side BOX_SIDE
+# (of the unit cube) around it, trust regions from BASELINE_REGION, and candidates that move
+# about PERTURBED coordinates of their center at a time (TuRBO moves 20 of them: in 11
+# dimensions, every one; at 30 evaluations fewer moves found better controllers)
+LOCAL_POINTS, BOX_SIDE, BASELINE_REGION, PERTURBED = 3, 0.2, 0.1, 3.0
 # a tradeoff's search: auto is ehvi for two criteria, parego for more (tuning/mobo.py, pareto.py)
 FRONTS = ("auto", "ehvi", "parego")
 
@@ -117,15 +130,26 @@ class RandomSearch:
         return (self._low + rng.random(len(self._low)) * (self._high - self._low)).tolist()
 
 
+def local_design(n: int, center, bounds, seed: int, side: float = BOX_SIDE) -> list[list[float]]:
+    """``n`` points of a Latin hypercube (scipy's, seeded) in a box of ``side`` (a fraction of
+    each bound's width) around ``center``, clipped to ``bounds``: the start at a baseline."""
+    if n <= 0:
+        return []
+    low, high = (np.array(b, dtype=float) for b in zip(*bounds))
+    middle = (np.asarray(center, dtype=float) - low) / (high - low)
+    unit = qmc.LatinHypercube(d=len(low), seed=np.random.default_rng([seed, 0])).random(n)
+    return (low + np.clip(middle + (unit - 0.5) * side, 0.0, 1.0) * (high - low)).tolist()
+
+
 def _region(records, start: int, batch: int, d: int, lane: int | None = None,
-            lanes: int = 1) -> tuple[float, list]:
+            lanes: int = 1, initial: float = REGION_START) -> tuple[float, list]:
     """The trust region's side length after the batches recorded from ``start`` on (TuRBO's
     rule, replayed over the history), and its best feasible record so far. Without ``lane``
     the region of the whole history: its center is the best point of all. With ``lane``, the
     region that follows only its own points (record ``k`` belongs to lane ``(k - start) %
     lanes``) from the run's first point (the warm start: the spec's first baseline, or the
     initial design's first point in a run without one)."""
-    length, successes, failures = REGION_START, 0, 0
+    length, successes, failures = initial, 0, 0
     patience = max(1, math.ceil(max(4, d) / batch))
     best = _best(records[:start]) if lane is None else _best(records[:1])
     for first in range(start, len(records), batch):
@@ -149,7 +173,7 @@ def _region(records, start: int, batch: int, d: int, lane: int | None = None,
         elif failures >= patience:
             length, failures = length / 2, 0
         if length < REGION_MIN:  # converged: start again around the incumbent
-            length, successes, failures = REGION_START, 0, 0
+            length, successes, failures = initial, 0, 0
     return length, best
 
 
@@ -162,8 +186,11 @@ class ConstrainedBO:
     """The proposals of ``bo`` (module doc) over a box ``bounds``."""
 
     def __init__(self, bounds, seed: int, *, xi: float, n_initial_points: int, batch: int,
-                 gp_restarts: int = 0, region: str = "trust", screen=None):
+                 gp_restarts: int = 0, region: str = "trust", screen=None, start: str = "space"):
         self.low, self.high = (np.array(b, dtype=float) for b in zip(*bounds))
+        # a start at the baseline searches close to it (STARTS)
+        self.initial = BASELINE_REGION if start == "baseline" else REGION_START
+        self.perturbed = PERTURBED if start == "baseline" else 20.0
         self.d = len(self.low)
         self.seed, self.xi, self.batch = seed, xi, batch
         self.n_initial_points, self.restarts, self.region = n_initial_points, gp_restarts, region
@@ -188,14 +215,14 @@ class ConstrainedBO:
             objective = Surrogate(X[valued], [records[k]["value"] for k in valued],
                                    _theta(b.previous.get("objective"), self.d), b.refit,
                                    self.restarts, b.fit_seed)
-        length, _ = _region(records, start, self.batch, self.d)
+        length, _ = _region(records, start, self.batch, self.d, initial=self.initial)
         if best is not None:
             center = self._unit(best["x"])
         else:  # nothing feasible yet: around the point closest to feasibility
             center = X[int(np.argmin(margins))]
         regions = [(center, length, None)]
         for lane in range(1, LANES):
-            own_length, own = _region(records, start, self.batch, self.d, lane, LANES)
+            own_length, own = _region(records, start, self.batch, self.d, lane, LANES, self.initial)
             where, size = (self._unit(own["x"]), own_length) if own is not None else (center, length)
             regions.append((where, size, OWN_WIDEST))
 
@@ -244,7 +271,7 @@ class ConstrainedBO:
         box = low + rng.random((n, self.d)) * (high - low)
         # TuRBO: perturb only some coordinates of the center, so that high dimensions still
         # move in few directions at a time
-        mask = rng.random((n, self.d)) <= min(1.0, 20.0 / self.d)
+        mask = rng.random((n, self.d)) <= min(1.0, self.perturbed / self.d)
         empty = ~mask.any(axis=1)
         mask[empty, rng.integers(self.d, size=int(empty.sum()))] = True
         return np.where(mask, box, center)

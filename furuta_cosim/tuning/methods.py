@@ -137,7 +137,13 @@ class Bayes(Method):
         if len(records) >= run.n_calls:
             return  # a finished run resumed: nothing to propose, no time to count
         started = time.perf_counter()
-        design = initial_design(spec, run.evaluator, run.seed, run.log)[:run.n_calls]
+        tradeoff = spec.objective.type == "tradeoff"
+        start = "space" if tradeoff else start_of(spec, run.n_calls, records)
+        design = initial_design(spec, run.evaluator, run.seed, run.log, start)[:run.n_calls]
+        if not any(o.startswith("initial design around") for _, o in design):
+            start = "space"   # no baseline in the space to start around
+        if run.log and not records:
+            run.log(_start_line(spec, start, run.n_calls))
         replayed(records, [x for x, _ in design], 0)
         todo = design[len(records):]
         run.clock["optimizer"] += time.perf_counter() - started
@@ -149,7 +155,8 @@ class Bayes(Method):
         kind = HypervolumeBO if spec.objective.type == "tradeoff" and not parego else ConstrainedBO
         optimizer = kind(run.evaluator.space.bounds, run.seed, xi=settings.xi, n_initial_points=len(design),
                          batch=run.batch, gp_restarts=settings.gp_restarts, region=settings.region,
-                         screen=_stable(run.evaluator), **({"names": names} if kind is HypervolumeBO else {}))
+                         screen=_stable(run.evaluator),
+                         **({"names": names} if kind is HypervolumeBO else {"start": start}))
         for number, first, count in batches(len(design), run.batch, run.n_calls):
             if first + count <= len(records):
                 continue  # evaluated before a resume
@@ -282,12 +289,42 @@ class Safe(Method):
             run.collect([proposal.x], [run.submit(proposal.x, first)], [proposal.origin], proposal.surrogate)
 
 
-def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[float], str]]:
+def start_of(spec, n_calls: int, records=()) -> str:
+    """Where ``bo`` starts (tuning/bayesopt.py STARTS): ``optimizer.start``; ``auto`` is the
+    baseline for a budget of at most FEW_EVALUATIONS, else the space. A resumed run keeps the
+    start its history began with, whatever its new budget."""
+    from furuta_cosim.tuning.bayesopt import FEW_EVALUATIONS
+
+    if spec.optimizer.start != "auto":
+        return spec.optimizer.start
+    origins = [str(r.get("origin", "")) for r in records]
+    if any(o.startswith("initial design around") for o in origins):
+        return "baseline"
+    if any(o == "initial design" for o in origins):
+        return "space"
+    return "baseline" if n_calls <= FEW_EVALUATIONS else "space"
+
+
+def _start_line(spec, start: str, n_calls: int) -> str:
+    from furuta_cosim.tuning.bayesopt import FEW_EVALUATIONS
+
+    why = (f"optimizer.start: {spec.optimizer.start}" if spec.optimizer.start != "auto" else
+           f"a budget of {n_calls} evaluations: "
+           + (f"at most {FEW_EVALUATIONS} start at the baseline" if n_calls <= FEW_EVALUATIONS
+              else f"more than {FEW_EVALUATIONS} start over the whole space"))
+    where = ("around the first baseline, in small trust regions" if start == "baseline"
+             else f"over the whole space ({spec.optimizer.n_initial_points} initial points)")
+    return f"start: {where} ({why})"
+
+
+def initial_design(spec, evaluator, seed: int, log=None, start: str = "space") -> list[tuple[list[float], str]]:
     """The initial design of ``bo``: the spec's baselines (unless ``optimizer.warm_start`` is
     false) and ``optimizer.initial`` controllers the space can represent (each said in one
-    line, or why not), then a Latin hypercube up to ``optimizer.n_initial_points``."""
+    line, or why not), then a Latin hypercube up to ``optimizer.n_initial_points``; with
+    ``start`` ``baseline``, a few points of a small Latin hypercube around the first of them
+    instead (tuning/bayesopt.py LOCAL_POINTS)."""
     from furuta_cosim.controllers import load_controller
-    from furuta_cosim.tuning.bayesopt import latin_hypercube
+    from furuta_cosim.tuning.bayesopt import LOCAL_POINTS, latin_hypercube, local_design
 
     design, seen = [], set()
     baselines = spec.baselines if spec.optimizer.warm_start else ()
@@ -303,6 +340,10 @@ def initial_design(spec, evaluator, seed: int, log=None) -> list[tuple[list[floa
                                                  else f"not in the initial design: {how}"))
             if x is not None:
                 design.append((x, f"{kind} {cfile.name}"))
+    if start == "baseline" and design:
+        around = design[0][1].split(" ", 1)[1]
+        fill = local_design(LOCAL_POINTS, design[0][0], evaluator.space.bounds, seed)
+        return design + [(x, f"initial design around {around}") for x in fill]
     fill = latin_hypercube(spec.optimizer.n_initial_points - len(design), evaluator.space.bounds, seed)
     return design + [(x, "initial design") for x in fill]
 

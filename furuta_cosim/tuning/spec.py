@@ -106,6 +106,7 @@ class OptimizerSettings:
     batch: int = 1
     gp_restarts: int = 0
     region: str = "trust"               # bo's candidates: a trust region, or the whole space
+    start: str = "auto"                 # bo's start: around the first baseline, or the whole space
     front: str = "auto"                 # a tradeoff's search: ehvi (two criteria) or parego
     initial: tuple[str, ...] = ()       # controller files entering the initial design
     warm_start: bool = True             # the spec's baselines enter the initial design too
@@ -781,10 +782,10 @@ _OPTIMIZER_NUMBERS = {"n_calls": dict(integer=True, minimum=1, maximum=MAX_CALLS
 
 
 def _optimizer(check: Checker, value) -> OptimizerSettings | None:
-    from furuta_cosim.tuning.bayesopt import FRONTS, REGIONS
+    from furuta_cosim.tuning.bayesopt import FRONTS, REGIONS, STARTS
 
     defaults = OptimizerSettings()
-    section = check.mapping(value, "optimizer", optional=("method", "region", "front", "initial",
+    section = check.mapping(value, "optimizer", optional=("method", "region", "front", "initial", "start",
                                                           "warm_start", *_OPTIMIZER_NUMBERS))
     if section is None:
         return None
@@ -792,7 +793,8 @@ def _optimizer(check: Checker, value) -> OptimizerSettings | None:
 
     values = {"method": check.string(section.get("method", defaults.method), "optimizer.method", tuple(METHODS)),
               "region": check.string(section.get("region", defaults.region), "optimizer.region", REGIONS),
-              "front": check.string(section.get("front", defaults.front), "optimizer.front", FRONTS)}
+              "front": check.string(section.get("front", defaults.front), "optimizer.front", FRONTS),
+              "start": check.string(section.get("start", defaults.start), "optimizer.start", STARTS)}
     for key, rules in _OPTIMIZER_NUMBERS.items():
         values[key] = check.number(section.get(key, getattr(defaults, key)), f"optimizer.{key}", **rules)
     values["warm_start"] = section.get("warm_start", defaults.warm_start)
