@@ -189,11 +189,10 @@ def _delay_starts(runner, spec, items: list, log) -> list:
     x = np.array([u.start / u.scale for u in items])
     for k in delays:
         lo, hi = items[k].bounds
-        grid = np.unique(np.clip(np.linspace(lo, hi, min(DELAY_GRID, int(round((hi - lo) / period)) + 1))
-                                 if (hi - lo) / period > DELAY_GRID - 1 else
-                                 np.arange(math.ceil(lo / period - 1e-9), math.floor(hi / period + 1e-9) + 1) * period,
-                                 lo, hi))
-        grid = grid if len(grid) else np.array([lo])
+        grid = np.arange(math.ceil(lo / period - 1e-9), math.floor(hi / period + 1e-9) + 1) * period
+        if not 0 < len(grid) <= DELAY_GRID:   # bounds within one sample, or logs of other periods
+            grid = np.linspace(lo, hi, DELAY_GRID if len(grid) else 2)
+        grid = np.clip(grid, lo, hi)
         costs = []
         for value in grid:
             x[k] = value / items[k].scale
