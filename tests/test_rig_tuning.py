@@ -460,3 +460,71 @@ def test_a_board_that_cannot_be_opened_stops_the_tuning_before_its_simulated_pri
 def test_a_reset_file_that_cannot_swing_up_is_refused_before_the_run(tmp_path):
     with pytest.raises(ConfigError, match="rig.reset: .*lqr-qube.*not a swing-up-and-balance file"):
         BoardTrials("virtual:fast", QUBE, "lqr-qube", 0.5, 0)
+
+
+@pytest.mark.slow
+def test_a_rig_whose_cable_pulls_the_arm_off_home_is_reset_with_the_arm_home(tmp_path):
+    """qube-servo-3-offset: under lqr-qube alone the arm balances about 0.1 rad off home and the
+    reset never held it home (every trial stopped at the baseline's); the reset's integral moves
+    the arm's reference until it stands home, and the trial says by how much."""
+    from furuta_cosim.cosim import compile_controller
+    from furuta_cosim.tuning.rig import Fidelity
+
+    spec = load_spec(_spec(tmp_path))
+    rig = BoardTrials("virtual:fast", load_plant("qube-servo-3-offset"),
+                      str(ROOT / "scenarios" / "controllers" / "swingup-qube.yaml"), 0.5, 0, {"delay": 0.002})
+    evaluator = RigEvaluator(spec, rig, tmp_path / "run", Fidelity(spec, []))
+    evaluator.check_references()
+    lines = []
+    evaluator.log = lines.append
+    scenarios = [TrialScenario(label, prepared, compile_controller(prepared, "lqr-qube").cfile,
+                               compile_controller(prepared, "lqr-qube").runtime)
+                 for label, prepared, _ in evaluator.runs()]
+    result, metrics, info = evaluator.run_trial("0001", scenarios)
+    assert result.status == "finished" and "reset" not in result.failures, result.failures
+    assert set(metrics) == {"qube-step", "qube-sine"}
+    # the cable pulls the arm toward +3 degrees: the reference that holds it home is beyond
+    # the other side (0.19 rad measured), and the trial says it
+    assert 0.05 < result.hold_offset < 0.5
+    recorded = json.loads((tmp_path / "run" / "trials" / "0001" / "trial.json").read_text())
+    assert recorded["hold_offset"] == pytest.approx(result.hold_offset)
+    assert any("held the arm home with its reference +0." in line for line in lines)
+    # the log's reference in the reset is that integral, and the candidate started with the arm home
+    log = np.genfromtxt(tmp_path / "run" / "trials" / "0001" / "run" / "log.csv", delimiter=",", names=True)
+    reset = log["phase"] == -1
+    assert abs(log["r"][reset][-1] - result.hold_offset) < 0.05
+    first = np.flatnonzero(log["phase"] == 0)[0]
+    assert abs(log["theta0"][first]) < 0.05
+
+
+def test_the_resets_integral_rests_near_home_and_starts_over_with_a_swing_up():
+    from furuta_cosim.rig.trial import HOLD_RATE, TrialRuntime
+    from furuta_cosim.swingup import BALANCE, SWINGUP
+
+    class Safe:
+        mode, switches = BALANCE, []
+
+        def reset(self):
+            pass
+
+        def control(self, x, rbar):
+            self.rbar = rbar
+            return 0.0
+
+    runtime = TrialRuntime(Safe(), [], None, 0.002, hold_gain=0.25, hold_limit=0.5, reset_timeout=1e9)
+    upright = [0.1, 0.0, 0.0, 0.0]
+    for _ in range(1000):  # 2 s with the arm still 0.1 rad off, the pendulum upright
+        runtime.control(upright, 0.0)
+    assert runtime.hold_offset == pytest.approx(-0.25 * 2.0 * 0.1, rel=1e-9)
+    assert runtime.safe.rbar == runtime.hold_offset == runtime.reference
+    held = runtime.hold_offset
+    runtime.control([0.02, 0.0, 0.0, 0.0], 0.0)          # within half of home: it rests
+    runtime.control([0.1, 2 * HOLD_RATE, 0.0, 0.0], 0.0)  # the arm moving: it rests
+    runtime.control([0.1, 0.0, 0.2, 0.0], 0.0)            # the pendulum not upright: it rests
+    assert runtime.hold_offset == held
+    for _ in range(20000):  # it never passes its limit
+        runtime.control([0.2, 0.0, 0.0, 0.0], 0.0)
+    assert runtime.hold_offset == -0.5
+    runtime.safe.mode = SWINGUP  # a fall: the swing-up again, the integral starts over
+    runtime.control([0.2, 0.0, 3.0, 0.0], 0.0)
+    assert runtime.hold_offset == 0.0

@@ -5,7 +5,16 @@ swing-up-and-balance controller swings the pendulum up and holds it until it has
 upright with the arm home for ``settle`` seconds (the reset); then for each scenario the
 candidate takes over (its state reset) and follows the scenario's reference for its duration,
 the safe controller holding the pendulum again between scenarios; then the damp-down brings the
-rig to rest for the next trial. A candidate that lets the pendulum fall beyond ``fall`` rad from
+rig to rest for the next trial. While it holds the pendulum, the safe controller's arm
+reference is the integral of the arm's angle (``hold_gain`` rad per rad s, within
+``hold_limit`` rad): a rig whose encoder cable pulls the arm off home settles off home under
+state feedback alone (the cable's torque balanced by the arm's error), and the integral moves
+the reference until the arm stands at home; on a rig like its model it stays near 0. It runs
+only with the pendulum upright and the arm slow (:data:`HOLD_RATE`); within half of ``home``
+of home it holds still: with the arm's Coulomb friction an integral
+that never rests makes the arm hunt about home (a limit cycle of about 7 s on a QUBE whose
+cable pulls the arm 3 degrees off, at 2 rad per rad s). The
+reference the reset ends at (when the first scenario starts) is the trial's ``hold_offset``. A candidate that lets the pendulum fall beyond ``fall`` rad from
 upright fails that scenario, and the trial ends there: the damp-down lets the pendulum fall on
 and brings it to rest (the scenarios after it are not run). A trip of the supervisor ends the
 run, the rig left at 0 V.
@@ -27,6 +36,10 @@ from furuta_cosim.errors import ConfigError
 from furuta_cosim.swingup import BALANCE, wrap
 
 RESET, SETTLE, DAMP = -1.0, -2.0, -3.0
+# the integral holding the arm home runs while the arm moves slower than this (rad/s): not while
+# the catch throws the arm about (it wound up there and doubled the reset's time on a rig like
+# its model, 8 s to 14 s, at 0.25 rad per rad s)
+HOLD_RATE = 0.2
 
 
 @dataclass(frozen=True)
@@ -51,8 +64,9 @@ class TrialRuntime:
     def __init__(self, safe, segments: list[Segment], damp, period: float, *,
                  settle: float = 1.0, upright: float = 0.05, still: float = 1.0, home: float = 0.05,
                  fall: float = 0.5, reset_timeout: float = 25.0, rest: float = 0.5,
-                 damp_timeout: float = 15.0):
+                 damp_timeout: float = 15.0, hold_gain: float = 0.25, hold_limit: float = 0.5):
         self.safe, self.segments, self.damp, self.period = safe, segments, damp, period
+        self.hold_gain, self.hold_limit = hold_gain, hold_limit
         self.settle, self.upright, self.still, self.home, self.fall = settle, upright, still, home, fall
         self.reset_timeout, self.rest_hold, self.damp_timeout = reset_timeout, rest, damp_timeout
         self.reset()
@@ -64,6 +78,8 @@ class TrialRuntime:
         self.next_segment = 0
         self.failures: dict[str, str] = {}
         self.reference = 0.0
+        self.hold_offset = 0.0  # the safe controller's arm reference (module docstring)
+        self.reset_offset: float | None = None  # hold_offset when the reset handed over
         self.finished = self.at_rest = False
 
     @property
@@ -85,7 +101,13 @@ class TrialRuntime:
         theta1 = wrap(x[2])
         self.phase = self.state
         if self.state in (RESET, SETTLE):
-            u = self.safe.control(x, 0.0)
+            if self.safe.mode != BALANCE:  # swinging up (or up again after a fall): it starts over
+                self.hold_offset = 0.0
+            elif abs(x[0]) > self.home / 2 and abs(theta1) < self.upright and abs(x[1]) < HOLD_RATE:
+                step = self.hold_offset - self.hold_gain * self.period * x[0]
+                self.hold_offset = min(self.hold_limit, max(-self.hold_limit, step))
+            u = self.safe.control(x, self.hold_offset)
+            self.reference = self.hold_offset
             held = (self.safe.mode == BALANCE and abs(theta1) < self.upright and abs(x[3]) < self.still
                     and abs(x[0]) < self.home and abs(x[1]) < self.still)
             self.quiet = self.quiet + self.period if held else 0.0
@@ -93,6 +115,8 @@ class TrialRuntime:
                 if self.next_segment == len(self.segments):
                     self._enter(DAMP)
                 else:
+                    if self.state == RESET:
+                        self.reset_offset = self.hold_offset
                     self.segments[self.next_segment].controller.reset()
                     self._enter(float(self.next_segment))
             elif self.elapsed > self.reset_timeout:
@@ -186,6 +210,7 @@ def run_trial(segments: list[Segment], board, plant, output: str | Path, *, rese
     summary["failures"] = dict(runtime.failures)
     summary["tripped"] = summary["status"] == "tripped"
     summary["at_rest"] = runtime.at_rest
+    summary["hold_offset"] = runtime.reset_offset
     return summary
 
 

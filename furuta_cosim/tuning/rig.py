@@ -39,6 +39,8 @@ from furuta_cosim.files import folder as make_folder, output_folder, write_text
 from furuta_cosim.tuning.objective import Evaluator, Outcome
 from furuta_cosim.tuning.trials import STATUSES, TrialResult, TrialScenario
 
+HELD_OFF = 0.01  # rad: a reset's integral this far from 0 is said in the trial's log line
+
 
 class Fidelity:
     """The simulated fidelity: the spec's plant (its variants too) in simulation, the history of
@@ -134,15 +136,18 @@ class RigEvaluator(Evaluator):
                 failures[s.label] = "not run: " + (result.reason if result.status != "finished" else "no data")
         info = {"folder": f"trials/{name}", "status": result.status, "reason": result.reason,
                 "failures": failures, "seconds": result.seconds}
+        if result.hold_offset is not None:
+            info["hold_offset"] = result.hold_offset
         write_text(folder / "trial.json", dumps(json_safe({**info, "metrics": metrics}), indent=2) + "\n")
         self.log(f"trial {name}: {result.status}: {result.reason}"
-                 + ("" if not failures else "; failed: " + "; ".join(f"{k}: {v}" for k, v in failures.items())))
+                 + ("" if not failures else "; failed: " + "; ".join(f"{k}: {v}" for k, v in failures.items()))
+                 + held_home(result.hold_offset))
         if "reset" in failures and not any(s.label in metrics for s in scenarios):
             raise RunStopped(f"trial {name}: the reset failed before the candidate ran ({failures['reset']}; "
                              f"{folder}): the safe controller must swing up and hold this rig; check it "
                              "(and rig.reset), then resume")
         return TrialResult(result.status, result.reason, failures, {}, metrics, result.seconds,
-                           result.at_rest), metrics, info
+                           result.at_rest, result.hold_offset), metrics, info
 
     def _judged(self, result: TrialResult, metrics: dict, info: dict, constraints: dict,
                 slacks: list) -> Outcome:
@@ -243,6 +248,16 @@ class RigEvaluator(Evaluator):
         info = {k: document[k] for k in ("folder", "status", "reason", "failures", "seconds")}
         return (TrialResult(document["status"], document["reason"], dict(document["failures"]), {}, metrics,
                             float(document["seconds"])), metrics, info)
+
+
+def held_home(offset: float | None) -> str:
+    """What a trial's log line says of the reset's integral (trial.py's ``hold_offset``): where
+    the rig's own equilibrium under the safe controller is off home, the reference that held
+    the arm home instead."""
+    if offset is None or abs(offset) < HELD_OFF:
+        return ""
+    return (f"; the reset held the arm home with its reference {offset:+.3f} rad off (the rig's "
+            "equilibrium under the safe controller is off home: a cable's pull, friction)")
 
 
 def _trial_document(document, labels) -> bool:

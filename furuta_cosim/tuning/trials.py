@@ -55,7 +55,9 @@ class TrialScenario:
 class TrialResult:
     """What a trial gave: ``status`` (finished, tripped, failed), ``reason``, ``failures``
     (scenario label, or ``reset``, -> why), the traces or metrics of the scenarios that ran,
-    seconds of rig time, and whether the rig was left at rest."""
+    seconds of rig time, whether the rig was left at rest, and the arm reference the reset held
+    the arm home with when it handed over to the first scenario (``hold_offset``, rad; None
+    where the reset did not finish or the trial does not say)."""
 
     status: str
     reason: str
@@ -64,6 +66,7 @@ class TrialResult:
     metrics: dict = field(default_factory=dict)
     seconds: float = 0.0
     at_rest: bool = True
+    hold_offset: float | None = None
 
 
 def trial_seed(seed: int, name: str) -> int:
@@ -183,7 +186,7 @@ class BoardTrials:
         traces = segment_traces(folder / "run", segments)
         status = "tripped" if summary["tripped"] else ("finished" if summary["code"] == 0 else "failed")
         return TrialResult(status, summary["reason"], dict(summary["failures"]), traces, {},
-                           float(summary["seconds"]), self.at_rest)
+                           float(summary["seconds"]), self.at_rest, summary["hold_offset"])
 
 
 class ExternalTrials:
