@@ -1,8 +1,10 @@
 """Tuning with the rig in the loop, measured on a rig that is not the model.
 
-The rig is the virtual board running ``qube-servo-3-worn`` (more friction, a softer cable) with
-a 3 ms transport delay (the model's board: 1 ms); every controller is designed and simulated on
-``qube-servo-3``. For each seed of ``--seeds``, on the spec ``effort-qube``:
+The rig is the virtual board running ``--rig`` (default ``qube-servo-3-worn``: more friction, a
+softer cable) with a ``--delay`` transport delay (default 3 ms; the model's board: 1 ms); every
+controller is designed and simulated on ``qube-servo-3``. ``--rig qube-servo-3-offset --delay
+0.002`` is a rig whose encoder cable pulls the arm 3 degrees off home (the reset holds the arm
+home with an integral). For each seed of ``--seeds``, on the spec ``effort-qube``:
 
 - (a) transferred: the spec tuned in simulation alone (``bo``, the spec's budget), its best
   controller run on the rig;
@@ -17,7 +19,9 @@ round the same noise for all, new to every tuning), each scored against the LQR'
 round: the rig objective of the table is the mean, and a controller counts as feasible when it
 was in every round. Differential evolution is not a row: its first generation (5 x 11
 candidates) is already beyond 30 trials. Each row also says the trials each tuning broke a
-constraint in or had stopped by the supervisor, and the wall time; ``--paced N`` runs the first
+constraint in or had stopped by the supervisor, and the wall time; the safe tuning's own trials
+say how many it took to beat the LQR's trial (the first feasible trial scoring below it) and
+its best feasible trial after 15 and after 30 trials (one trial's score each, not validated); ``--paced N`` runs the first
 N seeds' safe tuning again on the board paced in real time (its wall time beside the unpaced
 one's).
 
@@ -41,10 +45,24 @@ from furuta_cosim.tuning.spec import load_spec
 from furuta_cosim.tuning.trials import BoardTrials
 
 RIG, DELAY = "qube-servo-3-worn", 0.003
+BOARD = {"delay": DELAY}  # the virtual board's options (--delay)
 
 
 def trials_on(board: str, plant, spec, seed: int) -> BoardTrials:
-    return BoardTrials(board, plant, spec.rig.reset, spec.rig.fall, seed, {"delay": DELAY})
+    return BoardTrials(board, plant, spec.rig.reset, spec.rig.fall, seed, dict(BOARD))
+
+
+def progress(folder: Path) -> dict:
+    """From a rig tuning's history: the trials it took to beat the LQR's trial (the safe seed,
+    trial 1; None if none did) and its best feasible trial after 15 and after 30 trials."""
+    records = [json.loads(line) for line in (folder / "history.jsonl").read_text().splitlines() if line.strip()]
+    lqr = records[0]["objective"]
+    beat = next((k + 1 for k, r in enumerate(records) if r.get("feasible") and r["objective"] < lqr), None)
+
+    def best(n):
+        values = [r["objective"] for r in records[:n] if r.get("feasible")]
+        return min(values) if values else None
+    return {"beat_lqr_at": beat, "best_15": best(15), "best_30": best(30), "lqr_trial": lqr}
 
 
 def tuned(spec, plant, folder: Path, seed: int, n_trials: int, method: str, board: str) -> tuple[dict, float]:
@@ -97,9 +115,12 @@ def main() -> None:
     parser.add_argument("--paced", type=int, default=0, help="seeds whose safe tuning also runs paced")
     parser.add_argument("--validations", type=int, default=3, help="validation trials per controller")
     parser.add_argument("--out", default="bench-rig-tune")
+    parser.add_argument("--rig", default=RIG, help=f"the virtual board's plant (default {RIG})")
+    parser.add_argument("--delay", type=float, default=DELAY, help=f"its transport delay in s (default {DELAY})")
     args = parser.parse_args()
+    BOARD["delay"] = args.delay
     spec = load_spec("effort-qube")
-    plant = load_plant(RIG)
+    plant = load_plant(args.rig)
     out = Path(args.out)
     rows = []
     for seed in range(args.seeds):
@@ -114,6 +135,7 @@ def main() -> None:
         row = {"seed": seed, "scores": scores, "safe": {k: safe[k] for k in ("trials", "violations", "trips")},
                "random": {k: rand[k] for k in ("trials", "violations", "trips")},
                "safe_best_in_run": safe["best"]["objective"] if safe["best"] else None,
+               "progress": progress(out / f"seed-{seed}" / "safe"),
                "wall": {"safe": safe_wall, "random": rand_wall}}
         rows.append(row)
         print(f"seed {seed}: " + ", ".join(f"{k} {shown(*v, args.validations)}" for k, v in scores.items())
@@ -155,6 +177,16 @@ def main() -> None:
               + f" | {'-' if name == 'safe' else f'{lower} of {len(values)}'} | {broke} | {trips} |")
     known = [v for r in rows for v, ok in r["scores"].values() if v is not None and ok == args.validations]
     print(f"\nthe lowest known: {min(known):.3f} (any controller here, feasible in every validation round)")
+    beats = [r["progress"]["beat_lqr_at"] for r in rows]
+    found = sorted(b for b in beats if b is not None)
+    print(f"\nthe safe tuning's own trials (one trial's score each): beat the LQR's trial at trial "
+          + (f"{statistics.median(found):g} (median), {max(found)} (worst)" if found else "-")
+          + f", in {len(found)} of {len(rows)} seeds")
+    for n in (15, 30):
+        bests = [r["progress"][f"best_{n}"] for r in rows if r["progress"][f"best_{n}"] is not None]
+        if bests and n <= args.trials:
+            print(f"best feasible trial after {n} trials: median {statistics.median(bests):.3f}, "
+                  f"worst {max(bests):.3f} (the LQR's trial {rows[0]['progress']['lqr_trial']:.3f})")
     walls = [r["wall"]["safe"] for r in rows]
     print(f"wall time of a safe tuning (simulation prior included), unpaced: median {statistics.median(walls):.0f} s")
     paced = [r["wall"]["safe_paced"] for r in rows if "safe_paced" in r["wall"]]
