@@ -194,19 +194,35 @@ def cmd_simulate(args) -> int:
     from furuta_cosim.scenario import load_scenario
     from furuta_cosim.simulation import simulate_scenario
 
-    scenario = load_scenario(args.scenario)
-    if args.plant:
-        from furuta_cosim.cosim.master import on_plant
+    from furuta_cosim.ssp import carried_scenario, is_ssp, on_ssp
 
+    controllers = args.controller
+    if is_ssp(args.scenario):  # an SSP of ours: its scenario and controller on its plant
+        if args.plant or args.fmu:
+            raise ConfigError([f"{args.scenario}: an SSP runs its own plant: no --plant or --fmu with it"])
+        scenario, carried, plant = carried_scenario(args.scenario)
+        controllers = controllers or ([str(carried)] if carried else None)
+        print(f"{args.scenario}: plant {plant.component} with parameter set {plant.set_name or '(none)'}",
+              file=sys.stderr)
+    else:
+        scenario = load_scenario(args.scenario)
+    if args.plant:
         if args.fmu:
             raise ConfigError(["--plant: give a plant file or an FMU (--fmu), not both"])
-        scenario = on_plant(scenario, args.plant)
+        if is_ssp(args.plant):
+            scenario, plant = on_ssp(scenario, args.plant)
+            print(f"{args.plant}: plant {plant.component} with parameter set {plant.set_name or '(none)'}",
+                  file=sys.stderr)
+        else:
+            from furuta_cosim.cosim.master import on_plant
+
+            scenario = on_plant(scenario, args.plant)
     out = Path(args.output or Path("out") / scenario.name)
     started = time.perf_counter()
     progress = Progress()
     try:
         document, results = simulate_scenario(
-            scenario, out, controllers=args.controller, fmu=args.fmu, every=args.every,
+            scenario, out, controllers=controllers, fmu=args.fmu, every=args.every,
             traces=not args.no_trace, progress=progress,
             log=lambda line: (progress.close(), print(line, file=sys.stderr)))
     finally:
@@ -472,6 +488,24 @@ def cmd_export_controller(args) -> int:
                              model=args.model, delay=args.delay, fmi_version=args.fmi_version,
                              log=lambda line: print(line, file=sys.stderr))
     print(path)
+    return 0
+
+
+def cmd_export_ssp(args) -> int:
+    from furuta_cosim.files import output_file
+    from furuta_cosim.ssp import export_ssp
+
+    output_file(args.output, "-o")
+    found = export_ssp(args.scenario, args.controller, args.output, plants=args.plant or (),
+                       fmi_version=args.fmi_version, log=lambda line: print(line, file=sys.stderr))
+    if args.json:
+        print(dumps(found))
+        return 0
+    print(f"parameter sets: {', '.join(found['sets'])} (default {found['sets'][0]})")
+    print(f"connections: {'; '.join(found['connections'])}")
+    print(f"experiment: 0 to {found['stop']:g} s in steps of {found['step']:g} s (FMI {found['fmi_version']})")
+    print(f"note: {found['note']}")
+    print(found["path"])
     return 0
 
 
@@ -806,13 +840,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_analyze)
 
     p = commands.add_parser("simulate", help="run a scenario: traces, metrics, figures")
-    p.add_argument("scenario", help="scenario file or name in scenarios/ (paper-step, toy-step, ...)")
+    p.add_argument("scenario", help="scenario file or name in scenarios/ (paper-step, toy-step, ...); or an "
+                                    "SSP written by export-ssp (LOOP.ssp[:SET]): its scenario and "
+                                    "controller on its plant")
     p.add_argument("--controller", action="append",
                    help="run this controller file instead of the scenario's (repeatable)")
     p.add_argument("--fmu", help="run on this plant FMU instead of the scenario's plant "
                                  "(mapped by the scenario's plant.mapping)")
     p.add_argument("--plant", metavar="PLANT", help="run on this plant file or name (of the "
-                                                   "scenario's model) instead of the scenario's")
+                                                   "scenario's model) instead of the scenario's; or "
+                                                   "on the plant of an SSP, LOOP.ssp[:SET], with its "
+                                                   "parameter set SET (default its first)")
     p.add_argument("-o", "--output", help="folder for traces, metrics and figures (default out/<scenario>)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="write every N-th sample to the CSV traces (metrics use all)")
@@ -893,6 +931,19 @@ def build_parser() -> argparse.ArgumentParser:
                                                 "(default: the file's)")
     p.add_argument("--model", help="model whose states name the inputs (default: the file's)")
     p.set_defaults(handler=cmd_export_controller)
+
+    p = commands.add_parser("export-ssp", help="the closed loop (plant, controller, wiring, parameter sets) "
+                                               "as an SSP archive for Ecos, libcosim, OMSimulator, ...")
+    p.add_argument("scenario", help="scenario file or name: its plant, start, reference, period, duration")
+    p.add_argument("--controller", help="controller file or name (default: the scenario's first)")
+    p.add_argument("--plant", action="append", metavar="PLANT",
+                   help="a parameter set from this plant file or name (repeatable; the first is the "
+                        "default; default: the scenario's plant)")
+    p.add_argument("--fmi-version", choices=tuple(VERSIONS), default="2.0",
+                   help="FMI version of both FMUs (2.0, the default, or 3.0)")
+    p.add_argument("-o", "--output", required=True, help="the .ssp file to write")
+    p.add_argument("--json", action="store_true", help="print what was written as JSON")
+    p.set_defaults(handler=cmd_export_ssp)
 
     p = commands.add_parser("report", help="one self-contained HTML page for a run directory")
     p.add_argument("folder", help="a run directory of simulate, tune, regress -o or reproduce")

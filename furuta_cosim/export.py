@@ -172,15 +172,7 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
         raise ConfigError([f"ecos_closed_loop runs the Ecos engine: {missing}"])
 
     prepared = prepare(scenario)
-    scenario = prepared.scenario
-    unsupported = [key for key, present in (
-        ("reference (not constant)", not _constant(prepared.rbar)), ("noise", scenario.noise),
-        ("disturbances", scenario.disturbances), ("estimator", scenario.estimator),
-        ("actuator limit", prepared.limit), ("timing.communication_step", prepared.substeps != 1))
-        if present]
-    if unsupported:
-        raise ConfigError([f"{scenario.source}: the Ecos loop has only plant and controller; "
-                           f"this scenario needs the master for: {', '.join(unsupported)}"])
+    loop_only(prepared, "the Ecos loop")
     from furuta_cosim.fmu.session import model_description
 
     from furuta_cosim.fmu.exporter import build_fmu
@@ -202,5 +194,23 @@ def ecos_closed_loop(scenario, controller: str | Path, *, delay: int = 1):
     return prepared.t[:len(rows)], signals
 
 
-def _constant(values) -> bool:
+def loop_only(prepared, what: str, allowed=()) -> None:
+    """Refuse a scenario that needs more than a plant FMU and a controller FMU connected: a
+    reference that changes, noise, disturbances, an estimator, an actuator limit, or a
+    communication step finer than the control period are the Python master's (``allowed``:
+    the keys among ``reference``, ``actuator limit`` the caller carries otherwise)."""
+    scenario = prepared.scenario
+    unsupported = [key for key, present in (
+        ("reference (not constant)", not constant(prepared.rbar) and "reference" not in allowed),
+        ("noise", scenario.noise), ("disturbances", scenario.disturbances),
+        ("estimator", scenario.estimator),
+        ("actuator limit", prepared.limit and "actuator limit" not in allowed),
+        ("timing.communication_step", prepared.substeps != 1))
+        if present]
+    if unsupported:
+        raise ConfigError([f"{scenario.source}: {what} has only plant and controller; "
+                           f"this scenario needs the master for: {', '.join(unsupported)}"])
+
+
+def constant(values) -> bool:
     return len(values) == 0 or bool(np.all(values == values[0]))

@@ -105,6 +105,12 @@ def write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    with atomic(path) as partial:
+        partial.write_bytes(data)
+    return Path(path)
+
+
 def copy(source: str | Path, path: str | Path) -> Path:
     with atomic(path) as partial:
         shutil.copyfile(source, partial)

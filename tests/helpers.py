@@ -42,6 +42,21 @@ def python_blocks() -> list[tuple[str, str]]:
             for k, block in enumerate(re.findall(r"```python\n(.*?)```", text, re.S))]
 
 
+# a dynamic controller whose state sees the plant (Bc != 0), unlike the published ones: the
+# exported controller FMU and SSP loops are checked with it
+DYNAMIC = """\
+name: dynamic
+type: generalized
+time: continuous
+period: 0.002
+Ac: [[-20]]
+Bc: [[0.5, 0.1, -0.3, 0.05, 0]]
+Cc: [[1.0]]
+Dc: [[-0.3105, -5.2621, 70.7488, 8.9224, 0.1772]]
+model: paper-printed
+prefilter: {output: theta0}
+"""
+
 STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
 FOREIGN = Path(__file__).parent / "foreign"
 

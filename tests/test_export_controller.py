@@ -12,21 +12,7 @@ from furuta_cosim.fmu.check import ecos_available
 from furuta_cosim.fmu.session import PlantSession
 from furuta_cosim.scenario import load_scenario
 
-from helpers import run_cli
-
-# a dynamic controller whose state sees the plant (Bc != 0), unlike the published one
-DYNAMIC = """\
-name: dynamic
-type: generalized
-time: continuous
-period: 0.002
-Ac: [[-20]]
-Bc: [[0.5, 0.1, -0.3, 0.05, 0]]
-Cc: [[1.0]]
-Dc: [[-0.3105, -5.2621, 70.7488, 8.9224, 0.1772]]
-model: paper-printed
-prefilter: {output: theta0}
-"""
+from helpers import DYNAMIC, run_cli
 
 
 def _master(scenario, controller, delay):
