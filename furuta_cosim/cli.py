@@ -505,6 +505,8 @@ def cmd_export_ssp(args) -> int:
     print(f"connections: {'; '.join(found['connections'])}")
     print(f"experiment: 0 to {found['stop']:g} s in steps of {found['step']:g} s (FMI {found['fmi_version']})")
     print(f"note: {found['note']}")
+    print("schemas: " + ("valid against the SSP 1.0 schemas" if found["validated"] else
+                         "not validated (install pyssp-standard to check against the SSP 1.0 schemas)"))
     print(found["path"])
     return 0
 

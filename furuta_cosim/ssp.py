@@ -140,7 +140,8 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     -------
     dict
         ``path``, ``sets`` (names, the default first), ``connections`` (``a.x -> b.y``),
-        ``step``, ``stop``, ``reference``.
+        ``step``, ``stop``, ``reference``, ``validated`` (checked against the standard's
+        schemas: False when ``pyssp-standard`` is not installed).
 
     Raises
     ------
@@ -229,10 +230,35 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
             info = zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0))  # the same bytes each time
             info.compress_type = zipfile.ZIP_DEFLATED
             archive.writestr(info, data)
+    validated = schema_problems(files)
+    if validated:
+        raise ConfigError([f"{output}: the archive would not be valid SSP 1.0 (nothing written): {validated[0]}"])
     write_bytes(output, buffer.getvalue())
-    return {"path": str(output), "sets": order, "step": first.control_period, "stop": stop,
+    return {"path": str(output), "validated": validated is not None, "sets": order, "step": first.control_period, "stop": stop,
             "reference": reference, "reference_held": held, "note": note, "fmi_version": fmi_version,
             "connections": [f"{a}.{x} -> {b}.{y}" for a, x, b, y in connections]}
+
+
+def schema_problems(files: dict) -> list[str] | None:
+    """Each ``.ssd`` and ``.ssv`` of ``files`` (entry -> bytes) against the SSP 1.0 XML schemas
+    the standard publishes, as the ``pyssp-standard`` package carries them (read with
+    ``xmlschema``): the problems, [] when valid, None when those packages are not installed
+    (not validated, said as such)."""
+    try:
+        import pyssp_standard
+        import xmlschema
+    except ImportError:
+        return None
+    folder = Path(pyssp_standard.__file__).parent / "resources"
+    schemas = {".ssd": "SystemStructureDescription.xsd", ".ssv": "SystemStructureParameterValues.xsd"}
+    problems = []
+    for name, data in files.items():
+        schema = schemas.get(PurePosixPath(name).suffix)
+        if schema is None:
+            continue
+        for error in xmlschema.XMLSchema(str(folder / schema)).iter_errors(io.BytesIO(data)):
+            problems.append(f"{name}: {error.reason} (at {error.path})")
+    return problems
 
 
 def _parameter_values(md, start: dict) -> dict:

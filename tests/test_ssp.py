@@ -126,7 +126,7 @@ def test_every_exported_file_is_valid_against_the_standards_schemas(tmp_path):
         for name in sets:
             _schema("SystemStructureParameterValues.xsd").validate(io.BytesIO(archive.read(name)))
     assert {"resources/plant.fmu", "resources/controller.fmu"} <= set(names)
-    assert found["sets"] == ["qube-servo-3", "qube-servo-3-worn"]
+    assert found["sets"] == ["qube-servo-3", "qube-servo-3-worn"] and found["validated"]
     assert not found["reference_held"] and "drive it in your tool" in found["note"]
     # the same inputs give the same bytes
     export_ssp("qube-step", "lqr-qube", tmp_path / "again.ssp", plants=["qube-servo-3", "qube-servo-3-worn"])
@@ -267,6 +267,17 @@ def test_another_tools_ssp_is_read_by_its_plant_components_input(tmp_path, capsy
     assert "carries no furuta-cosim scenario" in one_line(capsys, "simulate", str(foreign))
     code, _, _ = run_cli(capsys, "simulate", "paper-step", "--plant", str(foreign), "-o", str(tmp_path / "o"))
     assert code == 0
+
+
+def test_an_archive_the_schemas_refuse_is_not_written(tmp_path, monkeypatch):
+    from furuta_cosim import ssp
+
+    original = ssp._ssd
+    monkeypatch.setattr(ssp, "_ssd", lambda *a: original(*a).replace(b'kind="input"', b'kind="sideways"', 1))
+    with pytest.raises(ConfigError, match=r"would not be valid SSP 1.0 \(nothing written\): "
+                                          r"SystemStructure.ssd: .*sideways"):
+        export_ssp("paper-step", "lqr-paper", tmp_path / "bad.ssp")
+    assert not (tmp_path / "bad.ssp").exists()
 
 
 def test_what_two_fmus_cannot_hold_is_refused_before_anything_is_written(tmp_path, capsys):
