@@ -289,3 +289,12 @@ def test_what_two_fmus_cannot_hold_is_refused_before_anything_is_written(tmp_pat
     assert "ends in .ssp" in one_line(capsys, "export-ssp", "paper-step", "-o", str(tmp_path / "t.zip"))
     with pytest.raises(ConfigError, match="fmi_version"):
         export_ssp("paper-step", "lqr-paper", tmp_path / "v.ssp", fmi_version="1.0")
+
+
+def test_without_the_schemas_the_archive_says_it_was_not_validated(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pyssp_standard", None)  # as if not installed
+    code, out, _ = run_cli(capsys, "export-ssp", "paper-step", "-o", str(tmp_path / "p.ssp"))
+    assert code == 0 and "schemas: not validated (install pyssp-standard" in out
+    assert (tmp_path / "p.ssp").is_file()
