@@ -60,7 +60,8 @@ from furuta_cosim.tuning.run import tune
 from furuta_cosim.tuning.spec import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
-METHODS = ("ours", "global", "before", "random", "de", "skopt", "restart", "wide", "elsewhere", "design30")
+METHODS = ("ours", "global", "before", "random", "de", "skopt", "optuna", "restart", "wide", "elsewhere",
+           "design30")
 # variants of ours tried for the basin one seed found (docs: Performance), each a patch of the
 # shipped optimizer made here, for the run only
 VARIANTS = ("restart", "wide", "elsewhere", "design30")
@@ -194,6 +195,48 @@ def skopt(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
     return _ask_tell(spec, folder, calls, workers, 1, lambda count: [optimizer.ask()], optimizer.tell)
 
 
+def optuna_tpe(spec, folder: Path, seed: int, calls: int, workers: int) -> dict:
+    """Optuna's TPE, multivariate and told the constraint (each evaluation's margin, <= 0 when
+    feasible), one point at a time, on the spec's space; Optuna is not a dependency of the
+    project (``python3 -m pip install optuna`` to run this method)."""
+    try:
+        import optuna
+    except ImportError:
+        raise SystemExit("--methods optuna needs Optuna: python3 -m pip install optuna") from None
+    from furuta_cosim.tuning.objective import Evaluator
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    dimensions = Evaluator(spec).space.dimensions()
+    names = [f"x{k}" for k in range(len(dimensions))]
+    distributions = {name: optuna.distributions.FloatDistribution(float(d.low), float(d.high),
+                                                                  log=d.prior == "log-uniform")
+                     for name, d in zip(names, dimensions)}
+    told = hasattr(optuna.trial.Trial, "set_constraint")  # Optuna 5; before: constraints_func
+    sampler = (optuna.samplers.TPESampler(seed=seed, multivariate=True) if told else
+               optuna.samplers.TPESampler(seed=seed, multivariate=True,
+                                          constraints_func=lambda trial: trial.user_attrs["constraint"]))
+    study = optuna.create_study(sampler=sampler)
+    asked = {}
+
+    def ask(count):
+        trials = [study.ask(distributions) for _ in range(count)]
+        xs = [[t.params[name] for name in names] for t in trials]
+        for t, x in zip(trials, xs):
+            asked[tuple(x)] = t
+        return xs
+
+    def tell(xs, ys, outcomes):
+        for x, y, outcome in zip(xs, ys, outcomes):
+            trial = asked.pop(tuple(x))
+            margin = outcome.margin if outcome.margin is not None and math.isfinite(outcome.margin) else 1.0
+            if told:
+                trial.set_constraint("margin", float(margin))
+            else:
+                trial.set_user_attr("constraint", [float(margin)])
+            study.tell(trial, float(y) if math.isfinite(y) else 1e6)
+    return _ask_tell(spec, folder, calls, workers, 1, ask, tell, outcomes_told=True)
+
+
 # the last revision before constrained BO; its optimizer modules are read from git history
 BEFORE = "8804270"
 
@@ -240,9 +283,12 @@ def _before_make():
     return modules["optimizers"].make
 
 
-def _ask_tell(spec, folder: Path, calls: int, workers: int, batch: int, ask, tell) -> dict:
+def _ask_tell(spec, folder: Path, calls: int, workers: int, batch: int, ask, tell,
+              outcomes_told: bool = False) -> dict:
     """Batches of ``ask(count)`` points evaluated and told (``tell(xs, ys)``) with the penalized
-    objective (``penalty + violation`` when infeasible); the best feasible in summary.json."""
+    objective (``penalty + violation`` when infeasible), with ``outcomes_told`` also each
+    outcome (``tell(xs, ys, outcomes)``: its constraint margin); the best feasible in
+    summary.json."""
     import warnings
 
     from furuta_cosim.tuning.executors import Processes, Serial
@@ -257,7 +303,8 @@ def _ask_tell(spec, folder: Path, calls: int, workers: int, batch: int, ask, tel
                 warnings.simplefilter("ignore")
                 xs = ask(min(batch, calls - done))
                 outcomes = executor.gather([executor.submit(x) for x in xs])
-                tell(xs, [outcome.objective for outcome in outcomes])
+                ys = [outcome.objective for outcome in outcomes]
+                tell(xs, ys, outcomes) if outcomes_told else tell(xs, ys)
             done += len(xs)
             for outcome in outcomes:
                 if outcome.feasible and (best is None or outcome.objective < best):
@@ -403,6 +450,8 @@ def measure(args, work: Path) -> dict:
                     document = variant(spec, folder, seed, args.calls, args.workers, method)
                 elif method == "skopt":
                     document = skopt(spec, folder, seed, args.calls, args.workers)
+                elif method == "optuna":
+                    document = optuna_tpe(spec, folder, seed, args.calls, args.workers)
                 elif method == "before":
                     document = before(spec, folder, seed, args.calls, args.workers)
                 else:
