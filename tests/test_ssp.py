@@ -298,3 +298,15 @@ def test_without_the_schemas_the_archive_says_it_was_not_validated(tmp_path, cap
     code, out, _ = run_cli(capsys, "export-ssp", "paper-step", "-o", str(tmp_path / "p.ssp"))
     assert code == 0 and "schemas: not validated (install pyssp-standard" in out
     assert (tmp_path / "p.ssp").is_file()
+
+
+def test_libcosim_refuses_the_fmi_3_archive_as_the_page_says(tmp_path):
+    """The exchange page says libcosimpy reads FMI 2.0 only: should a release read 3.0, this
+    fails and the page is to be corrected."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+
+    log_output_level(CosimLogLevel.ERROR)
+    export_ssp("paper-step", "lqr-paper", tmp_path / "three.ssp", fmi_version="3.0")
+    with pytest.raises(AssertionError, match="Unable to create execution"):
+        CosimExecution.from_ssp_file(str(tmp_path / "three.ssp"), step_size=2_000_000)
