@@ -172,7 +172,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     for given, variant in variants:
         prepared = prepare(variant)
         loop_only(prepared, "an SSP of the plant and controller FMUs", ("reference", "actuator limit"))
-        name = load_plant(variant.plant).name if variant.plant else variant.name
+        name = set_name(load_plant(variant.plant)) if variant.plant else variant.name
         if not SET_NAME.fullmatch(name):
             raise ConfigError([f"{given or variant.plant}: its name {name!r} is no parameter set's name "
                                "(letters, digits, '_', '.', '-'; at most 64)"])
@@ -259,6 +259,16 @@ def schema_problems(files: dict) -> list[str] | None:
         for error in xmlschema.XMLSchema(str(folder / schema)).iter_errors(io.BytesIO(data)):
             problems.append(f"{name}: {error.reason} (at {error.path})")
     return problems
+
+
+def set_name(plant) -> str:
+    """A plant's parameter set's name: the plant's own, but for the ``plant.yaml`` that
+    identify writes into its run folder, which is named after that folder (``runs/qube-fit/
+    plant.yaml``: ``qube-fit``); characters a set's name cannot hold become ``-``."""
+    name = plant.name
+    if plant.path is not None and Path(plant.path).name == "plant.yaml" and Path(plant.path).parent.name:
+        name = Path(plant.path).resolve().parent.name
+    return re.sub(r"[^A-Za-z0-9_.-]", "-", name).lstrip("-_.") or "plant"
 
 
 def _parameter_values(md, start: dict) -> dict:

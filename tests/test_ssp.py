@@ -310,3 +310,15 @@ def test_libcosim_refuses_the_fmi_3_archive_as_the_page_says(tmp_path):
     export_ssp("paper-step", "lqr-paper", tmp_path / "three.ssp", fmi_version="3.0")
     with pytest.raises(AssertionError, match="Unable to create execution"):
         CosimExecution.from_ssp_file(str(tmp_path / "three.ssp"), step_size=2_000_000)
+
+
+def test_a_plant_file_identify_wrote_is_a_set_named_after_its_run_folder(tmp_path):
+    folder = tmp_path / "qube-fit"
+    folder.mkdir()
+    (folder / "plant.yaml").write_text("model: furuta\nextends: qube-servo-3\ndescription: a fit\n"
+                                       "parameters:\n  R_a: 7.66\n  M_f: 0.04266\n")
+    found = export_ssp("qube-step", "lqr-qube", tmp_path / "fit.ssp", plants=[str(folder / "plant.yaml"), "qube-servo-3"])
+    assert found["sets"] == ["qube-fit", "qube-servo-3"]
+    plant = read_ssp(tmp_path / "fit.ssp", folder=tmp_path / "x")
+    assert plant.set_name == "qube-fit" and plant.parameters["R_a"] == 7.66 and plant.parameters["M_f"] == 0.04266
+    assert read_ssp(tmp_path / "fit.ssp", "qube-servo-3", folder=tmp_path / "y").parameters["R_a"] == 7.5
