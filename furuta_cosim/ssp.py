@@ -32,6 +32,7 @@ import io
 import math
 import re
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from xml.etree import ElementTree as ET
@@ -464,15 +465,22 @@ def read_ssp(path: str | Path, parameter_set: str | None = None, *, control_inpu
         if sum(i.file_size for i in members) > MAX_TOTAL:
             raise fail(None, f"more than {MAX_TOTAL // 2**20} MB when extracted")
         names = {i.filename for i in members}
+        taken = [0]   # bytes read in all: an entry's size in its header can lie
 
         def read(entry: str) -> bytes:
             entry = str(PurePosixPath(entry))
             if entry not in names:
                 raise fail(entry, "missing from the archive")
-            with archive.open(entry) as handle:
-                content = handle.read(MAX_ENTRY + 1)
+            try:
+                with archive.open(entry) as handle:
+                    content = handle.read(MAX_ENTRY + 1)
+            except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as error:
+                raise fail(entry, f"a corrupt entry ({error})") from None
             if len(content) > MAX_ENTRY:
                 raise fail(entry, f"larger than {MAX_ENTRY // 2**20} MB")
+            taken[0] += len(content)
+            if taken[0] > MAX_TOTAL:
+                raise fail(entry, f"more than {MAX_TOTAL // 2**20} MB read from the archive in all")
             return content
 
         root = _parse(read(ENTRY), ENTRY, fail)

@@ -248,6 +248,23 @@ def test_an_archive_is_hostile_input(tmp_path, capsys, exported, monkeypatch):
     assert "(resources/plant.fmu): larger than" in one_line(capsys, "simulate", "paper-step", "--plant",
                                                             str(exported))
     monkeypatch.setattr(ssp, "MAX_ENTRY", 200 * 2**20)
+    # many components of one FMU entry: each read counts (the declared sizes pass)
+    many = b"".join(b'<ssd:Component name="c%d" source="resources/plant.fmu"/>' % k for k in range(40))
+    crowded = _rewritten(exported, tmp_path / "crowded.ssp", _replace("SystemStructure.ssd", b"</ssd:Elements>",
+                                                                    many + b"</ssd:Elements>"))
+    monkeypatch.setattr(ssp, "MAX_TOTAL", 300000)
+    assert "MB read from the archive in all" in one_line(capsys, "simulate", "paper-step", "--plant", str(crowded))
+    monkeypatch.setattr(ssp, "MAX_TOTAL", 500 * 2**20)
+    # an entry whose compressed bytes were damaged: its checksum (or inflation) fails
+    raw = bytearray(exported.read_bytes())
+    with zipfile.ZipFile(exported) as archive:
+        info = archive.getinfo("resources/paper-calibrated.ssv")
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+    raw[start + info.compress_size // 2] ^= 0xFF
+    broken = tmp_path / "corrupt.ssp"
+    broken.write_bytes(bytes(raw))
+    assert "(resources/paper-calibrated.ssv): a corrupt entry" in one_line(capsys, "simulate", "paper-step",
+                                                                        "--plant", str(broken))
     assert "no parameter set 'worn' for component plant (it has: paper-calibrated)" in one_line(
         capsys, "simulate", "paper-step", "--plant", f"{exported}:worn")
     assert "no such file" in one_line(capsys, "simulate", "paper-step", "--plant", str(tmp_path / "none.ssp"))
