@@ -1,0 +1,142 @@
+"""How closely other engines run an exported SSP: each loop exported by ``export_ssp``, run in
+Ecos and in libcosim, and compared with our master run of the same scenario with its
+one-sample delay (``timing.delay: 1``), sample for sample.
+
+Loops: ``paper-step`` under ``lqr-paper`` and under a generalized controller whose state sees
+the plant, FMI 2.0 and 3.0 (libcosim: 2.0 only; it refuses 3.0, which the suite checks); ``qube-step`` held at 0.3 rad
+from the start with a 0.13 V actuator limit that its first commands reach (the plant's
+``V_max`` in the SSP). Per loop and engine: the largest difference of each angle (rad) and of
+the command the plant applied (V), and the export's time.
+
+    python3 tools/bench_ssp.py
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+
+from helpers import DYNAMIC  # noqa: E402  the suite's generalized controller, one definition
+
+LIMIT = 0.13   # V: the QUBE loop's actuator limit
+
+
+def master(scenario, controller):
+    from furuta_cosim.cosim import evaluate, prepare
+    from furuta_cosim.fmu.session import PlantSession
+    from furuta_cosim.scenario import load_scenario
+
+    prepared = prepare(replace(load_scenario(scenario), delay=1))
+    with PlantSession.open(prepared.fmu) as session:
+        trace = evaluate(prepared, session, controller).trace
+    return np.column_stack([trace["theta0"], trace["theta1"], trace.u])
+
+
+def ecos(path: Path, found: dict) -> np.ndarray:
+    from ecospy import EcosSimulation
+
+    rows = []
+    with EcosSimulation(step_size=found["step"], ssp_path=str(path)) as simulation:
+        simulation.init(parameter_set=found["sets"][0])
+        for _ in range(round(found["stop"] / found["step"])):
+            rows.append([simulation.get_real(n) for n in ("plant::theta0", "plant::theta1", "plant::V")])
+            simulation.step()
+        simulation.terminate()
+    return np.array(rows)
+
+
+def libcosim(path: Path, found: dict) -> np.ndarray | None:
+    """The rows aligned with the master's (the observer reads after each step: the angles of
+    the next sample, the command that step ran with; the first sample's angles are not read);
+    None when libcosim refuses the archive."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+
+    log_output_level(CosimLogLevel.ERROR)
+    try:
+        execution = CosimExecution.from_ssp_file(str(path), step_size=round(found["step"] * 1e9))
+    except AssertionError:
+        return None
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    plant = {s.name.decode(): s.index for s in execution.slave_infos()}["plant"]
+    refs = {v.name.decode(): v.reference for v in execution.slave_variables(plant)}
+    rows = []
+    for _ in range(round(found["stop"] / found["step"])):
+        execution.step()
+        rows.append(observer.last_real_values(plant, [refs["theta0"], refs["theta1"], refs["V"]]))
+    rows = np.array(rows)
+    aligned = np.full_like(rows, np.nan)
+    aligned[1:, :2] = rows[:-1, :2]
+    aligned[:, 2] = rows[:, 2]
+    return aligned
+
+
+@contextlib.contextmanager
+def quiet():
+    """The engines' own lines on the C stdout (Ecos says how it loads an FMI 3.0 FMU) kept out
+    of the table."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+def main() -> int:
+    from furuta_cosim.ssp import export_ssp
+
+    print("| loop | FMI | engine | theta0 (rad) | theta1 (rad) | applied V | export |")
+    print("|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(scratch)
+        (folder / "dynamic.yaml").write_text(DYNAMIC)
+        hold = folder / "qube-hold.yaml"
+        hold.write_text((ROOT / "scenarios" / "qube-step.yaml").read_text()
+                        .replace("points: [[0.0, 0.0], [0.5, 0.3]]", "points: [[0.0, 0.3]]")
+                        .replace("name: qube-step", "name: qube-hold") + f"actuator: {{limit: {LIMIT}}}\n")
+        loops = [("paper-step", "lqr-paper", "lqr-paper"), ("paper-step", str(folder / "dynamic.yaml"), "generalized"),
+                 (str(hold), "lqr-qube", "lqr-qube")]
+        for scenario, controller, label in loops:
+            expected = master(scenario, controller)
+            name = Path(scenario).stem
+            for version in ("2.0", "3.0") if name == "paper-step" else ("2.0",):
+                path = folder / f"{name}-{label}-{version}.ssp"
+                started = time.perf_counter()
+                found = export_ssp(scenario, controller, path, fmi_version=version)
+                seconds = time.perf_counter() - started
+                limit = LIMIT if name == "qube-hold" else np.inf
+                for engine, run in (("Ecos", ecos), ("libcosim", libcosim)):
+                    if engine == "libcosim" and version == "3.0":  # it refuses (tests/test_ssp.py)
+                        print(f"| {name}, {label} | {version} | {engine} | not run: libcosimpy reads FMI 2.0 "
+                              f"only | | | {seconds:.2f} s |")
+                        continue
+                    with quiet():
+                        rows = run(path, found)
+                    if rows is None:
+                        print(f"| {name}, {label} | {version} | {engine} | refused | | | {seconds:.2f} s |")
+                        continue
+                    rows[:, 2] = np.clip(rows[:, 2], -limit, limit)
+                    worst = np.nanmax(np.abs(rows - expected), axis=0)
+                    print(f"| {name}, {label} | {version} | {engine} | {worst[0]:.2g} | {worst[1]:.2g} | "
+                          f"{worst[2]:.2g} | {seconds:.2f} s |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
