@@ -35,6 +35,20 @@ def test_variants_follow_the_fits_covariance(tmp_path):
     assert variants_from_fit(_fit(tmp_path), 8, seed=1) != variants_from_fit(_fit(tmp_path), 8, seed=0)
 
 
+def test_a_parameter_s_reach_widens_its_spread_as_it_widens_its_interval(tmp_path):
+    """A reach of 1.96 x 0.05 (the counted start angles', identify/reach.py) doubles R_a's
+    spread; the correlation stays."""
+    parameters = {"R_a": {"value": 7.6, "stderr": 0.05, "reach": 1.959963984540054 * 0.05, "bounds": [1.0, 30.0]},
+                  "M_f": {"value": 0.042, "stderr": 0.001, "reach": 0.0, "bounds": [0.005, 0.2]}}
+    names, _, covariance, _ = read_fit(_fit(tmp_path, parameters=parameters))
+    assert names == ["R_a", "M_f"]
+    assert np.sqrt(np.diag(covariance)) == pytest.approx([0.1, 0.001], rel=1e-12)
+    assert covariance[0, 1] / np.sqrt(covariance[0, 0] * covariance[1, 1]) == pytest.approx(0.95)
+    parameters["R_a"]["reach"] = -1.0
+    with pytest.raises(ConfigError, match=r"parameters.R_a.reach: expected a finite number >= 0"):
+        read_fit(_fit(tmp_path, parameters=parameters))
+
+
 def test_a_singular_covariance_and_the_bounds_are_honoured(tmp_path):
     wide = _fit(tmp_path, rho=1.0, parameters={
         "R_a": {"value": 1.05, "stderr": 1.0, "bounds": [1.0, 30.0]},

@@ -129,7 +129,7 @@ def test_an_input_s_delay_is_fitted_with_its_interval(tmp_path, capsys):
     delay = found["chirp.V.delay"]
     assert abs(delay["value"] - 0.012) < 0.001, delay
     assert delay["interval"][1] - delay["interval"][0] < 0.001
-    assert delay["rests_on"] == "its sandwich interval (only plant parameters are profiled)"
+    assert delay["rests_on"].startswith("its sandwich interval (only plant parameters are profiled)")
     assert abs(found["R_a"]["value"] / 7.5 - 1.0) < 0.02
 
 

@@ -158,6 +158,7 @@ class Experiment:
     alias: str = ""              # a part of a log (identify/split.py): the whole log's name
     # how a start given as `data` was read (state -> a line identify prints)
     start_from: Mapping[str, str] = field(default_factory=lambda: Frozen({}))
+    from_data: frozenset = frozenset()   # the start states ``start: data`` read from the log
     # s after each row's time that its outputs were read (a rig's `late` column; None: on time)
     late: np.ndarray | None = None
     # inputs whose delay is fitted: kept as logged in ``inputs`` (identify/fit.py)
@@ -287,7 +288,8 @@ def load_experiment(path: str | Path) -> Experiment:
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
-                      start_from=Frozen(start_from), late=late, delays=Frozen(delays))
+                      start_from=Frozen(start_from), late=late, delays=Frozen(delays),
+                      from_data=frozenset(n for n, v in (top.get("start") or {}).items() if v == "data"))
 
 
 def _resampled(check: Checker, top: dict, table: dict, time_column: str, first: int, last: int,

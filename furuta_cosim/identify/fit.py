@@ -17,7 +17,8 @@ a swing is the same misfit for hundreds of samples), so the textbook covariance
 ``(J^T J)^-1 S (J^T J)^-1``: ``S`` the long-run covariance of the score ``J_t r_t`` of each
 (experiment, output) series, summed over lags with Bartlett weights up to a window chosen
 from the series' own integrated autocorrelation time (Sokal's rule: the smallest window
-M >= 5 tau(M)). Intervals are value +- 1.96 standard errors (95 %).
+M >= 5 tau(M)). Intervals are value +- 1.96 standard errors (95 %), widened on each side by
+the reach of the start angles a log's counts give (identify/reach.py).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ NOT_SEPARABLE = 0.95
 FAILED_RESIDUAL = 1e4
 _INTERVALS = ("Newey-West sandwich covariance (Bartlett weights, window from each residual "
               "series' integrated autocorrelation time); 95 % = +-1.96 standard errors")
+_REACH = ("; widened on each side by the reach of the counted start angles (the largest move of the "
+          "value over the corners of half an encoder count up or down from the logged ones, "
+          "identify/reach.py)")
 
 # -- evaluation in workers ----------------------------------------------------------------
 _CONTEXT: dict = {}
@@ -357,6 +361,8 @@ class FitResult:
     unseen: tuple = ()             # unknowns the data do not depend on (not identifiable)
     optima: list = None            # a multi-start's distinct optima (lowest cost first)
     precheck: dict | None = None   # the Jacobian at the start values read (identify/precheck.py)
+    reach: dict | None = None      # name -> what the counted start angles can move it by (identify/reach.py)
+    reach_from: dict | None = None
 
     def document(self) -> dict:
         """fit.json: every value with its interval, the correlations, the residuals."""
@@ -366,6 +372,7 @@ class FitResult:
         parameters = {}
         for k, u in enumerate(self.items):
             value, err = self.values[u.name], float(sd[k] * scales[k])
+            reach = (self.reach or {}).get(u.name, 0.0)
             lo, hi = u.bounds
             at_bound = bool(np.isclose(value, lo, rtol=1e-9, atol=1e-12 * u.scale)
                             or np.isclose(value, hi, rtol=1e-9, atol=1e-12 * u.scale))
@@ -381,7 +388,8 @@ class FitResult:
                 "rests_on": "the data do not depend on it" if not seen else "nothing yet",
                 "stderr": err if seen else None,
                 "stderr_plain": float(sd_plain[k] * scales[k]) if seen else None,
-                "interval": [value - Z95 * err, value + Z95 * err] if seen else None,
+                "interval": [value - Z95 * err - reach, value + Z95 * err + reach] if seen else None,
+                "reach": reach if seen else None,
                 "bounds": [lo, hi], "at_bound": at_bound and seen}
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = self.covariance / np.outer(sd, sd)
@@ -391,7 +399,9 @@ class FitResult:
         pairs = [[names[i], names[j], float(corr[i, j])] for i in range(len(names))
                  for j in range(i + 1, len(names)) if abs(corr[i, j]) > NOT_SEPARABLE]
         return {"name": self.spec.name, "plant": self.target.label, "fmu_sha256": _sha(self.target.fmu),
-                "parameters": parameters, "interval_method": _INTERVALS,
+                "parameters": parameters,
+                "interval_method": _INTERVALS + (_REACH if self.reach else ""),
+                "reach": self.reach_from or None,
                 "correlation": {"names": names, "matrix": corr.tolist()},
                 "not_separable": pairs,
                 "experiments": self.experiments, "validation": self.validation,
@@ -584,7 +594,11 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
         covariance[np.ix_(seen, seen)], plain[np.ix_(seen, seen)] = part, part_plain
         windows = diagnostics["windows"]
     values = final.values(x)
+    from furuta_cosim.identify.reach import start_reach
     from furuta_cosim.identify.replay import compare
+
+    reach, reach_from = start_reach(target, spec.experiments, items, x, J[:, seen], seen, workers, dask)
+    simulations += reach_from.get("simulations", 0)
 
     scored, held, before, simulated = {}, {}, {}, {}
     starts = {u.name: u.start for u in items}
@@ -604,7 +618,7 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     return FitResult(spec, target, items, {u.name: u.start for u in items}, values, covariance,
                      plain, windows, scored, held, before, simulated, record,
                      simulations, time.perf_counter() - started, float(0.5 * r @ r), message,
-                     tuple(items[k].name for k in unseen), optima, readings)
+                     tuple(items[k].name for k in unseen), optima, readings, reach, reach_from)
 
 
 def far_columns(experiments, start_outputs, starts: dict) -> list[dict]:

@@ -324,10 +324,13 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
                          "segments" if e.alias and "@" in e.name else "open"
                          for e in result.spec.experiments + result.spec.validation}
     document["verdict"] = verdict = judge(document, ranges, spec.tolerance)
-    if any(e.loop is not None and e.loop.estimate for e in result.spec.experiments):
-        verdict["notes"].append("intervals fitted through a balancing log's loop are narrower than their "
-                                "errors: on a synthetic rig of known truth the estimated angles left a few "
-                                "parameters biased beyond them (docs: Your own rig, Closed-loop logs)")
+    if result.reach:
+        widest = sorted(((r / abs(result.values[n]), n) for n, r in result.reach.items()
+                         if "." not in n and result.values[n]), reverse=True)[:3]
+        verdict["notes"].append(
+            "every interval is widened by the reach of the start angles the logs' counts give (each "
+            "anywhere within half a count): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
+            + " (docs: Your own rig, What the data can tell)")
     document["accepted"] = bool(accept) and not verdict["trusted"]
     figures_of = _per_log([(e, {"start": result.simulated[e.name]["start"], "fitted": result.simulated[e.name]["fit"]})
                            for e in result.spec.experiments + result.spec.validation])
@@ -369,26 +372,40 @@ def _names(experiments) -> str:
 def _with_profiles(document: dict, found: dict) -> None:
     """fit.json with each profiled parameter's profile, its likelihood-ratio interval and its
     verdict; a parameter that is not identifiable in the profile's sense is marked so
-    (``identifiable: false``: tune --from-fit holds it at its value)."""
+    (``identifiable: false``: tune --from-fit holds it at its value). The interval is the
+    profile's widened by the counted start angles' reach (identify/reach.py); one that then
+    reaches 0 or a bound is not identifiable."""
+    from furuta_cosim.identify.reach import widened
+
     for name, profile in found.items():
         entry = document["parameters"][name]
         entry["profile"] = {k: profile[k] for k in ("values", "rise", "threshold", "simulations")}
-        entry["interval_profile"] = profile["interval"]
+        entry["interval_profile"] = widened(profile["interval"], entry.get("reach"))
         if profile["verdict"] == "not profiled":   # its sandwich interval says it (identify/verdict.py)
             entry["profile_why"] = profile.get("why", "")
             continue
-        entry["verdict"] = profile["verdict"] + (f": {profile['why']}" if profile.get("why") else "")
-        entry["identifiable"] = profile["verdict"] == "identifiable"
-        entry["rests_on"] = "its profile"
+        verdict, why = profile["verdict"], profile.get("why", "")
+        lo, hi = entry["interval_profile"]
+        if verdict == "identifiable" and (lo <= max(0.0, entry["bounds"][0]) or hi >= entry["bounds"][1]):
+            verdict = "practically not identifiable"
+            why = (f"its profile interval widened by the start angles' reach (+-{entry['reach']:.3g}) "
+                   f"is [{lo:.4g}, {hi:.4g}], reaching 0 or a bound")
+        entry["verdict"] = verdict + (f": {why}" if why else "")
+        entry["identifiable"] = verdict == "identifiable"
+        entry["rests_on"] = "its profile" + (", widened by the start angles' reach" if entry.get("reach") else "")
     document["interval_profile_method"] = (
         "profile likelihood: the cost with the parameter held and every other unknown fitted again; "
         "95 % where it rises less than chi2(1, 0.95) / 2 times the residual variance, scaled by the "
-        "parameter's sandwich-to-textbook variance ratio (Chandler and Bate 2007)")
+        "parameter's sandwich-to-textbook variance ratio (Chandler and Bate 2007)"
+        + ("; widened on each side by the counted start angles' reach" if document.get("reach") else ""))
 
 
 def _with_bootstrap(document: dict, resampled: dict) -> None:
+    from furuta_cosim.identify.reach import widened
+
     for name, entry in resampled["parameters"].items():
-        document["parameters"][name]["interval_bootstrap"] = entry["interval"]
+        document["parameters"][name]["interval_bootstrap"] = widened(entry["interval"],
+                                                                     document["parameters"][name].get("reach"))
         document["parameters"][name]["stderr_bootstrap"] = entry["stderr"]
     document["bootstrap"] = {k: resampled[k] for k in ("replicates", "seed", "blocks", "method")}
 

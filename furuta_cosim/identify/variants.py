@@ -2,7 +2,9 @@
 ``variants: {from_fit: FILE, samples: N, seed: S}``).
 
 The fitted plant parameters are taken as Gaussian with the fit's covariance (``fit.json``:
-standard errors and correlations, the Newey-West ones), so correlated pairs move together.
+standard errors and correlations, the Newey-West ones), so correlated pairs move together;
+a parameter's standard error is widened by its ``reach`` / 1.96 (identify/reach.py), so that
+the draws span its 95 % interval as fit.json states it.
 ``samples`` draws are a Latin hypercube in probability, mapped through the normal quantile
 and the covariance's square root: a space-filling design over the fit's uncertainty rather
 than a handful of random draws. Each draw is clipped to the parameter's bounds of the fit.
@@ -21,6 +23,7 @@ import numpy as np
 from furuta_cosim.errors import ConfigError
 
 MAX_SAMPLES = 64
+Z95 = 1.959963984540054
 
 
 MAX_JSON_DEPTH = 64  # a fit.json is four levels deep
@@ -127,8 +130,13 @@ def load_fit(path: str | Path) -> Fit:
         if numbers[1] > LARGEST_SPREAD * max(abs(pair[1] - pair[0]), abs(numbers[0]), 1e-300):
             problems.append(f"{key}.stderr: {numbers[1]:g} is beyond any spread its bounds allow")
             continue
+        reach = entry.get("reach") or 0.0
+        if not _finite(reach) or reach < 0:
+            problems.append(f"{key}.reach: expected a finite number >= 0 or none")
+            continue
         values.append(float(numbers[0]))
-        errors.append(float(numbers[1]))
+        # the counted start angles' reach widens the spread as it widens the 95 % interval
+        errors.append(float(numbers[1]) + float(reach) / Z95)
         bounds.append((float(pair[0]), float(pair[1])))
     matrix = correlation["matrix"]
     n = len(every)

@@ -116,7 +116,7 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
     for name, p in document["parameters"].items():
         if "." in name or p.get("interval") is None:
             continue
-        if p.get("rests_on") == "its profile" and not p.get("identifiable"):
+        if str(p.get("rests_on", "")).startswith("its profile") and not p.get("identifiable"):
             continue   # the profile's verdict says it; tune --from-fit holds it
         low, _, strict = ranges.get(name, (None, None, False))
         lo, hi = p["interval"]
@@ -203,7 +203,7 @@ def read_intervals(document: dict, ranges: dict, why: str = "not profiled") -> N
     physical range and, for a plant parameter, does not reach 0; ``why`` says why it rests on
     the sandwich (not profiled, the fit did not converge)."""
     for name, p in document["parameters"].items():
-        if p.get("rests_on") == "its profile" or p.get("interval") is None:
+        if str(p.get("rests_on", "")).startswith("its profile") or p.get("interval") is None:
             continue
         lo, hi = p["interval"]
         bound_lo, bound_hi = p["bounds"]
@@ -221,7 +221,8 @@ def read_intervals(document: dict, ranges: dict, why: str = "not profiled") -> N
         if high is not None and hi > high:
             wrong.append(f"reaches above {high:g}")
         p["identifiable"] = not wrong
-        p["rests_on"] = f"its sandwich interval ({reason})"
+        p["rests_on"] = f"its sandwich interval ({reason})" + (
+            ", widened by the start angles' reach" if p.get("reach") else "")
         p["verdict"] = (f"identifiable by its sandwich interval ({reason})" if not wrong else
                         f"practically not identifiable: its sandwich interval [{lo:.4g}, {hi:.4g}] "
                         f"{' and '.join(wrong)} ({reason})")
