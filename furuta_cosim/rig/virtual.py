@@ -31,7 +31,10 @@ AMPLIFIER = 15.0        # V: a QUBE's amplifier range, the virtual one's saturat
 STEP = 0.0005           # s: the plant's step between the runner's samples
 DELAY = 0.001           # s: from a write to the voltage at the motor
 ADC_QUANTUM = 6.0 / 4096  # A: a 12-bit current sensor over +-3 A
-LOG_COLUMNS = ("t", "V_written", "V_applied", "enabled", "watchdog_expired", "theta0", "theta1", "i")
+# "reloaded": when the watchdog was last reloaded (NaN unarmed): a runner that writes the same
+# command twice reloads without changing V_written
+LOG_COLUMNS = ("t", "V_written", "V_applied", "enabled", "watchdog_expired", "theta0", "theta1", "i",
+               "reloaded")
 
 
 class VirtualRig:
@@ -131,7 +134,8 @@ class VirtualRig:
             self.log = np.vstack([self.log, np.zeros((min(len(self.log), self.capacity - self.rows),
                                                      len(LOG_COLUMNS)))])
         self.log[self.rows] = (self.t, self.written, volts, float(self.enabled), float(self.expired),
-                               self.theta0, self.theta1, self.current)
+                               self.theta0, self.theta1, self.current,
+                               self.watchdog[1] if self.watchdog is not None else math.nan)
         self.rows += 1
 
     def save_log(self, path: Path) -> None:
