@@ -109,6 +109,7 @@ def test_the_printed_resume_line_continues_the_run_it_stopped(tmp_path):
     assert len((run / "history.jsonl").read_text().splitlines()) == 16
 
 
+@pytest.mark.slow
 def test_a_resume_without_n_calls_keeps_the_runs_budget(tmp_path):
     from furuta_cosim.tuning.run import tune
     from furuta_cosim.tuning.spec import load_spec

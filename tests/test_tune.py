@@ -274,6 +274,7 @@ def test_robust_effort_is_stable_on_every_plant_variant(tmp_path):
         assert values["theta1.max_abs"] <= 0.3  # bounded in co-simulation on both plants
 
 
+@pytest.mark.slow
 def test_resume_refuses_another_spec_method_or_seed(tmp_path, capsys):
     tune(load_spec("paper-spectral"), tmp_path / "run", n_calls=3)
     other = tmp_path / "other.yaml"
