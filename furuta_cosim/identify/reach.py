@@ -67,8 +67,8 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
         for angle, value, quantum in counted_angles(experiment):
             start[angle] = Free((value - quantum, value + quantum), value)
             extra.append(Unknown(f"{experiment.name}.{angle}", value, (value - quantum, value + quantum), quantum))
-        freed.append(replace(experiment, start=type(experiment.start)(start)) if extra and start != dict(
-            experiment.start) else experiment)
+        changed = start != dict(experiment.start)
+        freed.append(replace(experiment, start=type(experiment.start)(start)) if changed else experiment)
     if not extra or not len(seen):
         return {}, {}
     runner = Runner(target, freed, workers, dask)

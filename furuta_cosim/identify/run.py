@@ -324,9 +324,11 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
                          "segments" if e.alias and "@" in e.name else "open"
                          for e in result.spec.experiments + result.spec.validation}
     document["verdict"] = verdict = judge(document, ranges, spec.tolerance)
+    widest = []
     if result.reach:
         widest = sorted(((r / abs(result.values[n]), n) for n, r in result.reach.items()
                          if "." not in n and result.values[n]), reverse=True)[:3]
+    if widest:   # a plant parameter's reach (an initial state's alone is in fit.json)
         verdict["notes"].append(
             "every interval is widened by the reach of the start angles the logs' counts give (each "
             "anywhere within half a count): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
