@@ -374,6 +374,7 @@ def test_a_damaged_history_line_stops_resume_and_changes_nothing(stopped_run, tm
     assert history.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_a_last_line_without_newline_or_cut_short_resumes_cleanly(stopped_run, tmp_path, capsys):
     run = _copy_run(stopped_run, tmp_path)
     history = run / "history.jsonl"
