@@ -226,6 +226,32 @@ def test_the_safe_method_proposes_only_what_its_model_says_is_safe():
     assert max(xs) > 0.45, xs  # it learned the gap and went toward the boundary
 
 
+def test_a_new_trials_spread_takes_the_upper_bound_of_the_noise_its_trials_give():
+    """The gap's noise fitted from n trials is uncertain: a new trial is predicted with its upper
+    95 % bound (the fitted variance times n / chi2_0.05(n)), tighter as trials come; before
+    three trials the noise stays at its floor."""
+    from scipy.stats import chi2
+
+    from furuta_cosim.tuning.safe import GAP, SafeBO
+
+    rng = np.random.default_rng(3)
+    far = np.array([[0.5, 0.5]])
+    ratios = []
+    for n in (6, 24):
+        X = np.repeat(rng.random((n // 2, 2)), 2, axis=0)   # each point twice: the noise shows
+        gap = SafeBO._gap(X, 0.1 + rng.normal(0.0, 0.15, n), np.array([0.3, 0.3]))
+        fitted, upper = gap.noise_variances
+        assert fitted > GAP["noise"] ** 2   # this rig is noisier than the floor: fitted upward
+        assert upper == pytest.approx(fitted * n / chi2.ppf(0.05, n), rel=1e-12)
+        _, plain = gap.predict(far, return_std=True)
+        _, widened = SafeBO._predict(gap, far)
+        assert widened[0] ** 2 == pytest.approx(plain[0] ** 2 + upper - fitted, rel=1e-9)
+        ratios.append(upper / fitted)
+    assert ratios[0] > 3.0 and 1.0 < ratios[1] < 2.0   # 3.7 after 6 trials, 1.7 after 24
+    few = SafeBO._gap(rng.random((2, 2)), [0.3, -0.2], np.array([0.3, 0.3]))
+    assert few.noise_variances == (GAP["noise"] ** 2, GAP["noise"] ** 2)
+
+
 @pytest.mark.slow
 def test_an_external_rig_tunes_through_files(tmp_path, capsys):
     exchange = tmp_path / "exchange"

@@ -174,7 +174,8 @@ class SafeBO:
         # the noise fitted from n trials is itself uncertain (on the worn rig a constraint's
         # noise came out under what its trials then showed, and 4 trials in 300 broke it at
         # beta 2): a new trial's spread takes its upper confidence bound, the fitted variance
-        # times n / chi2_(1 - NOISE_CONFIDENCE)(n) (2.1 times at 5 trials, 1.5 at 30)
+        # times n / chi2_(1 - NOISE_CONFIDENCE)(n) (its standard deviation 2.1 times the fitted one after
+        # 5 trials, 1.3 times after 30)
         noise = gp.kernel_.k2.noise_level
         upper = noise * len(X) / chi2.ppf(1.0 - NOISE_CONFIDENCE, len(X)) if fitted else noise
         gp.noise_variances = (noise, upper)
