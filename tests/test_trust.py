@@ -176,6 +176,57 @@ def test_a_window_cut_mid_motion_does_not_keep_its_log_s_start(logs, tmp_path):
     assert load_experiment(logs["fitted"]).start["i"] == 0.0
 
 
+def test_a_window_cut_mid_run_starts_its_loop_where_the_rig_left_it(logs, tmp_path):
+    """The controller and its rate filter run over the rows before the window, and the command
+    still on its way to the motor is the one logged there: the command the replay rebuilds from
+    the log is the logged one from the window's first sample, in a part of the window cut later
+    too; restarted at the cut (filter and command at 0) it was 0.01 V or more off."""
+    from dataclasses import replace
+
+    from furuta_cosim.identify.replay import rebuilt_command
+    from furuta_cosim.identify.split import part
+
+    path = tmp_path / _experiment(logs["fitted"], tmp_path, "cut", lambda d: (
+        d.update(window=[2.0, 6.0]), d["start"].update(i="data", dtheta0="data", dtheta1="data")))
+    experiment = load_experiment(path)
+    lead = experiment.loop.lead_in
+    assert lead is not None and len(lead.angles) == round(2.0 / experiment.period) and lead.command is not None
+    logged = experiment.inputs["V"]
+    np.testing.assert_allclose(rebuilt_command(experiment), logged, rtol=0, atol=1e-9)
+    restarted = rebuilt_command(replace(experiment, loop=replace(experiment.loop, lead_in=None)))
+    assert abs(restarted[0] - logged[0]) > 0.01
+    later = part(experiment, 700, experiment.samples, "later")
+    np.testing.assert_allclose(rebuilt_command(later), logged[700:], rtol=0, atol=1e-9)
+    # the log's own start has no rows before it
+    assert load_experiment(logs["fitted"]).loop.lead_in is None
+
+
+@pytest.mark.slow
+def test_a_fit_of_a_window_cut_mid_run_says_so_in_its_verdict(logs, tmp_path, capsys):
+    """Such a window's intervals hold the truth less often than a whole log's: the verdict says
+    where the window starts and to check it against a fit of the whole log; a whole log's does not."""
+    def window(d):
+        d.update(window=[2.0, 5.0])
+        d["start"].update(i="data", dtheta0={"free": [-3.0, 3.0]}, dtheta1={"free": [-3.0, 3.0]})
+
+    for name, change, said in (("cut", window, True), ("whole", lambda d: None, False)):
+        folder = tmp_path / name
+        folder.mkdir()
+        spec = _spec(folder, logs, change, off=0.1)
+        data = yaml.safe_load(spec.read_text())
+        data["free"] = {"R_a": data["free"]["R_a"]}
+        spec.write_text(yaml.safe_dump(data, sort_keys=False))
+        code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(folder / "fit"), "--workers", "1",
+                                 "--no-profiles")
+        assert code == 0, (out, err)
+        notes = json.loads((folder / "fit" / "fit.json").read_text())["verdict"]["notes"]
+        mid_run = [n for n in notes if "starts mid-run" in n]
+        assert bool(mid_run) is said, notes
+        if said:
+            assert mid_run[0].startswith("fitted: its window starts mid-run (t = 2 s of its log)")
+            assert "against one of the whole log" in mid_run[0] and "starts mid-run" in out
+
+
 def test_what_the_data_cannot_separate_stops_the_fit_before_it_begins(logs, tmp_path, capsys):
     """A log without the current cannot tell R_a from M_f and C0: said in seconds, with the next
     step, not after the budget; --force fits anyway."""

@@ -124,9 +124,15 @@ def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np
     if loop.voltage is not None:
         written = np.clip(written, -loop.voltage, loop.voltage)
     N = len(written)
-    # the command at the motor over sample k: that of k - whole (0 before the log)
-    now = np.concatenate([np.zeros(min(whole, N)), written[:max(N - whole, 0)]])
-    before = np.concatenate([[0.0], now[:-1]])
+    # the command at the motor over sample k: that of k - whole; before the window, the one
+    # logged there (a window that cuts the log mid-run: Loop.lead_in), else 0
+    lead = loop.lead_in.command if loop.lead_in is not None and loop.lead_in.command is not None else np.zeros(0)
+    if loop.voltage is not None:
+        lead = np.clip(lead, -loop.voltage, loop.voltage)
+    prior = np.concatenate([np.zeros(max(whole + 1 - len(lead), 0)), lead[max(len(lead) - whole - 1, 0):]])
+    every = np.concatenate([prior, written])          # samples -(whole + 1) .. N - 1
+    now = every[1:N + 1]
+    before = every[:N]
     B = B_now + B_before
     Q = np.outer(B, B) * INPUT_NOISE ** 2 + np.eye(n) * 1e-12
     P = solve_discrete_are(Ad.T, C.T, Q, R)           # the a priori covariance, steady

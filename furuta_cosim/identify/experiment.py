@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping
 
@@ -45,6 +45,9 @@ _LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "v
               "late", "compute")
 _LAW_KEYS = ("K", "F", "period")
 MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
+# s of the log before a window that a closed-loop replay runs its controller over (its rate
+# filter forgets in milliseconds, a dynamic controller's state in well under this)
+LEAD_IN = 2.0
 _SIGNAL_KEYS = ("column", "unit", "scale", "offset")
 
 
@@ -80,6 +83,33 @@ class Delayed:
 
 
 @dataclass(frozen=True)
+class LeadIn:
+    """The log's rows just before a window that cuts it mid-run, in SI: what the controller
+    saw there (the angles as counted, the current, 0 where the log has none, the reference)
+    and the command written (None where the log has no voltage column). The closed-loop
+    replay runs the controller over them, so its rate filter and state are at the cut where
+    they were on the rig, and takes from them the commands still on their way to the motor."""
+
+    angles: np.ndarray           # (rows, 2): theta0, theta1
+    current: np.ndarray
+    reference: np.ndarray
+    command: np.ndarray | None
+
+    def then(self, angles, current, reference, command) -> "LeadIn":
+        """These rows followed by more (a part of the window cut after its start), the last
+        ``LEAD_IN`` s' worth kept by the caller."""
+        joined = None
+        if self.command is not None and command is not None:
+            joined = np.concatenate([self.command, command])
+        return LeadIn(np.vstack([self.angles, angles]), np.concatenate([self.current, current]),
+                      np.concatenate([self.reference, reference]), joined)
+
+    def last(self, rows: int) -> "LeadIn":
+        return LeadIn(self.angles[-rows:], self.current[-rows:], self.reference[-rows:],
+                      None if self.command is None else self.command[-rows:])
+
+
+@dataclass(frozen=True)
 class Loop:
     """The controller that ran while a log was recorded, as the replay closes it again: its
     file (and the file's sha256), or for a log from another tool a state-feedback ``law``
@@ -106,16 +136,19 @@ class Loop:
     compute: np.ndarray | None = None
     # a law in the logger's own words (identify/laws.py): references and measurements to command
     linear: "LinearLaw | None" = None
+    # the log's rows before a window that cuts it after its first row (None: the log's start)
+    lead_in: LeadIn | None = None
 
-    def cut(self, keep: slice) -> "Loop":
-        """The loop over the samples ``keep`` of its log's window."""
+    def cut(self, keep: slice, lead_in: LeadIn | None = None) -> "Loop":
+        """The loop over the samples ``keep`` of its log's window; ``lead_in``: the rows
+        before them, where ``keep`` starts after the window's first."""
         from dataclasses import replace
 
         def part(values):
             return None if values is None else values[keep]
 
         return replace(self, reference=part(self.reference), feedforward=part(self.feedforward),
-                       compute=part(self.compute),
+                       compute=part(self.compute), lead_in=self.lead_in if not keep.start else lead_in,
                        linear=None if self.linear is None else self.linear.cut(keep))
 
     def controller_file(self):
@@ -172,6 +205,26 @@ class Experiment:
     @property
     def samples(self) -> int:
         return len(self.t)
+
+    def lead_in_at(self, first: int) -> LeadIn | None:
+        """The loop's rows before sample ``first`` of the window (Loop.lead_in): the log's before
+        the window, then the window's own, the last ``LEAD_IN`` s."""
+        loop = self.loop
+        if loop is None or first == 0:
+            return None if loop is None else loop.lead_in
+        if "theta0" not in self.outputs or "theta1" not in self.outputs:
+            return None
+        rows = slice(max(0, first - int(round(LEAD_IN / self.period))), first)
+        count = rows.stop - rows.start
+        angles = np.column_stack([self.outputs[n].values[rows] for n in ("theta0", "theta1")])
+        current = self.outputs["i"].values[rows] if "i" in self.outputs else np.zeros(count)
+        reference = loop.reference[rows] if loop.reference is not None else np.zeros(count)
+        v = self.inputs.get("V")
+        command = None if v is None or np.isscalar(v) else np.asarray(v[rows], dtype=float)
+        lead = LeadIn(angles, current, reference, command)
+        if loop.lead_in is not None and rows.start == 0:
+            lead = loop.lead_in.then(angles, current, reference, command).last(int(round(LEAD_IN / self.period)))
+        return lead
 
     def free_starts(self) -> dict[str, Free]:
         """What the fit chooses besides plant parameters: free initial states (by state
@@ -277,6 +330,8 @@ def load_experiment(path: str | Path) -> Experiment:
             check.fail(f"parameters.{state}_start", f"sets the start of {state}, which start.{state} "
                                                     "sets too: give it in one place")
     check.done()
+    if loop is not None and first > 0:   # the rows before the window, from the same columns
+        loop = replace(loop, lead_in=_lead_in(check, top, table, columns, first, period))
     units = {}
     for key in ("inputs", "outputs"):
         section = top.get(key) if isinstance(top.get(key), dict) else {}
@@ -290,6 +345,39 @@ def load_experiment(path: str | Path) -> Experiment:
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
                       start_from=Frozen(start_from), late=late, delays=Frozen(delays),
                       from_data=frozenset(n for n, v in (top.get("start") or {}).items() if v == "data"))
+
+
+def _lead_in(check: Checker, top: dict, table, columns, first: int, period: float) -> LeadIn | None:
+    """The ``LEAD_IN`` s of rows before the window (none before a row whose numbers are missing
+    or a step that is not the period), read as the window's own are; None without both angles.
+    The entries were checked on the window, so reading them again cannot fail."""
+    outputs = top["outputs"]
+    if not all(isinstance(outputs.get(n), dict) for n in ("theta0", "theta1")):
+        return None
+    begin = max(0, first - int(round(LEAD_IN / period)))
+    part = slice(begin, first)
+    rows = first - begin
+
+    def signal(entry, key, extra):
+        return _signal(check, entry, key, table, columns, part, extra=extra)[0]
+
+    extra = ("quantum", "noise", "bias")
+    angles = np.column_stack([signal(outputs[n], f"outputs.{n}", extra) for n in ("theta0", "theta1")])
+    current = signal(outputs["i"], "outputs.i", extra) if isinstance(outputs.get("i"), dict) else np.zeros(rows)
+    entry = top["loop"]
+    reference = np.asarray(table[entry["reference"]][part], dtype=float) if "reference" in entry else np.zeros(rows)
+    v = (top.get("inputs") or {}).get("V")
+    command = signal(v, "inputs.V", ("delay",)) if isinstance(v, dict) else None
+    t = np.asarray(table[top["time"]][begin:first + 1], dtype=float)
+    usable = np.all(np.isfinite(angles), axis=1) & np.isfinite(current) & np.isfinite(reference)
+    if command is not None:
+        usable &= np.isfinite(command)
+    usable &= np.abs(np.diff(t) - period) <= UNIFORM_TOLERANCE * period   # the step to the next row
+    start = int(len(usable) - np.argmin(usable[::-1])) if not usable.all() else 0
+    if start >= rows:
+        return None
+    return LeadIn(angles[start:], current[start:], reference[start:],
+                  None if command is None else command[start:])
 
 
 def _resampled(check: Checker, top: dict, table: dict, time_column: str, first: int, last: int,

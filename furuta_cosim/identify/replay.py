@@ -395,8 +395,10 @@ _RUNTIMES: dict = {}   # (controller file or law, its sha256, period) -> (file, 
 
 def _commander(loop, experiment: Experiment):
     """A function (k, theta0, theta1, i as the controller saw them, SI) -> its command (V,
-    before the feedforward) at sample k of the window, its state from the window's start: the
-    loop's own law, or its controller with the rates by the loop's filter."""
+    before the feedforward) at sample k of the window, its state at the window's start: the
+    loop's own law (its state from the rows before the window: identify/laws.py), or its
+    controller with the rates by the loop's filter, both run first over the rows before a
+    window that cuts the log mid-run (``loop.lead_in``), as they ran on the rig."""
     if loop.linear is not None:
         step = loop.linear.stepper()
         return lambda k, a0, a1, current: step(k, {"theta0": a0, "theta1": a1, "i": current})
@@ -406,8 +408,22 @@ def _commander(loop, experiment: Experiment):
     runtime.reset()
     rates = RateFilter(experiment.period, loop.rate_filter)
     reference = loop.reference if loop.reference is not None else np.zeros(experiment.samples)
+    lead = loop.lead_in
+    logged = [experiment.outputs[n].values[0] if n in experiment.outputs else 0.0 for n in ("theta0", "theta1")]
+
+    def warm(a0, a1):
+        # the rows before the window as the controller saw them, moved by what it sees at the
+        # window's first sample less what was logged there (the replay's departure from the log,
+        # taken as it is at the cut): its filter sees no jump where the replay takes over
+        shift = (a0 - logged[0], a1 - logged[1])
+        for (b0, b1), current, r in zip(lead.angles.tolist(), lead.current.tolist(), lead.reference.tolist()):
+            b0, b1 = b0 + shift[0], b1 + shift[1]
+            r0, r1 = rates((b0, b1))
+            runtime.control([b0, r0, b1, r1, current], r)
 
     def command(k, a0, a1, current):
+        if k == 0 and lead is not None:
+            warm(a0, a1)
         r0, r1 = rates((a0, a1))
         return float(runtime.control([a0, r0, a1, r1, current], float(reference[k])))
     return command
@@ -460,11 +476,19 @@ def closed_loop(session, target: Target, experiment: Experiment,
 
         noise = estimated_noise(experiment, target, {**experiment.parameters, **(values or {})})
     # a delay of m whole samples and a fraction f of one: over [t_k, t_k + f) the motor gets the
-    # command of sample k - m - 1, over the rest of the sample that of k - m (0 before the start)
+    # command of sample k - m - 1, over the rest of the sample that of k - m; before the window's
+    # start, the command logged there (a window that cuts the log mid-run), else 0
     whole = int(_math.floor(loop.delay / h + 1e-9))
     part = loop.delay - whole * h
     if part < 1e-12 * h:
         part = 0.0
+    logged = loop.lead_in.command if loop.lead_in is not None and loop.lead_in.command is not None else np.zeros(0)
+
+    def written(j: int) -> float:
+        """The command of sample j of the window (j < 0: before it)."""
+        if j >= 0:
+            return volts[j]
+        return float(logged[j]) if -j <= len(logged) else 0.0
     # a log that records when each sample was read and its command written (a rig's `late` and
     # `compute`): the plant is stepped to each reading, its voltage switched at each write plus
     # the delay, wherever those fall
@@ -473,6 +497,12 @@ def closed_loop(session, target: Target, experiment: Experiment,
     arrive = read + (loop.compute if loop.compute is not None else 0.0) + loop.delay
     pending: list[tuple[float, float]] = []
     level, now_t = 0.0, float(read[0])
+    for j in range(-whole - 2, 0):   # the rows before the window, written on time
+        when = now_t + j * h + loop.delay
+        if when <= now_t + 1e-12:
+            level = written(j)
+        else:
+            pending.append((when, written(j)))
     try:
         session.reset(parameters=overrides(target, experiment, values or {}), start_time=float(experiment.t[0]))
         session.set_io(inputs=[v_name], outputs=[v for v, _, _ in fmu_out])
@@ -504,10 +534,9 @@ def closed_loop(session, target: Target, experiment: Experiment,
                 y = _held(session, (level - v_offset) / v_scale, end - now_t, h)
                 now_t = end
             elif k < n - 1:
-                now = volts[k - whole] if k >= whole else 0.0
+                now = written(k - whole)
                 if part > 0.0:  # the command before it reaches the motor for the first part
-                    before = volts[k - whole - 1] if k >= whole + 1 else 0.0
-                    session.step([(before - v_offset) / v_scale], part)
+                    session.step([(written(k - whole - 1) - v_offset) / v_scale], part)
                 y = session.step([(now - v_offset) / v_scale], h - part)
     except FmuError as error:
         raise SimulationFailed(str(error)) from None

@@ -333,6 +333,13 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
             "every interval is widened by the reach of the start angles the logs' counts give (each "
             "anywhere within half a count): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
             + " (docs: Your own rig, What the data can tell)")
+    for e in result.spec.experiments:
+        if e.loop is not None and e.loop.lead_in is not None:   # a window cut from a run
+            verdict["notes"].append(
+                f"{e.name}: its window starts mid-run (t = {e.t[0]:g} s of its log), its start state read or "
+                "fitted there: on synthetic balancing logs such windows' intervals held the truth less often "
+                "than whole logs' did; check the fit against one of the whole log (docs: Your own rig, What is "
+                "not yet right)")
     document["accepted"] = bool(accept) and not verdict["trusted"]
     figures_of = _per_log([(e, {"start": result.simulated[e.name]["start"], "fitted": result.simulated[e.name]["fit"]})
                            for e in result.spec.experiments + result.spec.validation])

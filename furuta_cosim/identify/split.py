@@ -102,7 +102,8 @@ def part(experiment, first: int, last: int, name: str, open_loop: bool = False):
     start = dict(experiment.start) if first == 0 else {**{k: v for k, v in experiment.start.items()
                                                           if k not in ("theta0", "theta1", "dtheta0", "dtheta1", "i")},
                                                        **measured_state(experiment, first)}
-    loop = experiment.loop.cut(keep) if experiment.loop is not None and not open_loop else None
+    loop = (experiment.loop.cut(keep, experiment.lead_in_at(first))
+            if experiment.loop is not None and not open_loop else None)
     # a fitted delay brings in the samples before the part: the log's own, within the window
     delays = {k: replace(d, before=np.concatenate([d.before, experiment.inputs[k]])[first:first + len(d.before)])
               for k, d in experiment.delays.items()}
