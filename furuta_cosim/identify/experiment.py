@@ -105,6 +105,7 @@ class LeadIn:
                       np.concatenate([self.reference, reference]), joined)
 
     def last(self, rows: int) -> "LeadIn":
+        """The last ``rows`` rows."""
         return LeadIn(self.angles[-rows:], self.current[-rows:], self.reference[-rows:],
                       None if self.command is None else self.command[-rows:])
 
@@ -142,8 +143,6 @@ class Loop:
     def cut(self, keep: slice, lead_in: LeadIn | None = None) -> "Loop":
         """The loop over the samples ``keep`` of its log's window; ``lead_in``: the rows
         before them, where ``keep`` starts after the window's first."""
-        from dataclasses import replace
-
         def part(values):
             return None if values is None else values[keep]
 
@@ -257,8 +256,6 @@ class Experiment:
         keep = max(2, int(np.searchsorted(self.t, self.t[0] + seconds, side="right")))
         if keep >= self.samples:
             return self
-        from dataclasses import replace
-
         inputs = {k: v if np.isscalar(v) else v[:keep] for k, v in self.inputs.items()}
         outputs = {k: replace(m, values=m.values[:keep]) for k, m in self.outputs.items()}
         loop = None if self.loop is None else self.loop.cut(slice(None, keep))
