@@ -219,8 +219,18 @@ def test_a_fit_of_a_window_cut_mid_run_says_so_in_its_verdict(logs, tmp_path, ca
         code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(folder / "fit"), "--workers", "1",
                                  "--no-profiles")
         assert code == 0, (out, err)
-        notes = json.loads((folder / "fit" / "fit.json").read_text())["verdict"]["notes"]
+        document = json.loads((folder / "fit" / "fit.json").read_text())
+        notes = document["verdict"]["notes"]
         mid_run = [n for n in notes if "starts mid-run" in n]
+        if said:   # its freed start rates widen the intervals by what the smoother knows of them
+            rates = document["reach"]["rates"]
+            assert sorted(rates) == ["fitted.dtheta0", "fitted.dtheta1"], document["reach"]
+            assert all(0.002 < r < 0.1 for r in rates.values()), rates
+            assert document["parameters"]["R_a"]["reach"] > 0
+            for name, r in rates.items():
+                assert document["parameters"][name]["reach"] >= r
+        else:
+            assert "rates" not in (document.get("reach") or {"rates": {}}) or not document["reach"]["rates"]
         assert bool(mid_run) is said, notes
         if said:
             assert mid_run[0].startswith("fitted: its window starts mid-run (t = 2 s of its log)")

@@ -34,6 +34,10 @@ FRICTION_SETTLED = 1e-3   # ... until its torque changes by less than this fract
 # the smoother's process noise: a disturbance on the voltage of this RMS (V); robust to start
 # values 30 % off on the synthetic log (0.2 V and 1 V give the same estimate to 0.02 quanta)
 INPUT_NOISE = 3.0
+# the covariance of the state at a log's first sample, in multiples of the settled one (a
+# window cut mid-run starts with rates no reading shows), and when the gains count as settled
+DIFFUSE = 1e4
+SETTLED = 1e-9
 # a log whose pendulum leaves this band around upright (rad) is not a balancing log: the
 # linear model is not the plant there, and the loop closes on the counted angles instead
 UPRIGHT = 0.5
@@ -51,7 +55,7 @@ def balancing(experiment) -> bool:
 
 
 def _model(target, values: Mapping[str, float], period: float, delay: float):
-    """(Ad, B_before, B_now, C, whole, friction): the plant linearized upright at ``values``
+    """(Ad, B_before, B_now, C, whole, friction, states): the plant linearized upright at ``values``
     (Coulomb friction left out of the linearization) and sampled at ``period``, the voltage
     reaching the motor ``delay`` after its sample: over a sample the motor gets one command for
     the delay's fraction of a sample and the next for the rest. ``friction``: None, or (the
@@ -103,16 +107,17 @@ def _model(target, values: Mapping[str, float], period: float, delay: float):
     part = delay - whole * period
     first, g_first = flow(part) if part > 1e-12 * period else (np.eye(n), np.zeros((n, 1)))
     rest, g_rest = flow(period - part if part > 1e-12 * period else period)
-    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole, friction
+    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole, friction, list(lin.states)
 
 
-def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-    """The two angles' measurement errors of ``experiment`` (logged minus estimated true
-    angle, rad, one value per sample), on the plant at ``values``."""
+def _setup(experiment, target, values: Mapping[str, float]):
+    """What the smoother of ``experiment`` at ``values`` needs: the model (:func:`_model`),
+    the readings ``y`` (the pendulum's turns taken off), their covariance, the voltage at the
+    motor over each sample (``before``, ``now``) and the process noise."""
     from scipy.linalg import solve_discrete_are
 
     loop = experiment.loop
-    Ad, B_before, B_now, C, whole, friction = _model(target, values, experiment.period, loop.delay)
+    Ad, B_before, B_now, C, whole, friction, states = _model(target, values, experiment.period, loop.delay)
     n = Ad.shape[0]
     names = ["theta0", "theta1"] + (["i"] if "i" in experiment.outputs and C.shape[0] > 2 else [])
     C = C[:len(names)]
@@ -131,14 +136,40 @@ def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np
         lead = np.clip(lead, -loop.voltage, loop.voltage)
     prior = np.concatenate([np.zeros(max(whole + 1 - len(lead), 0)), lead[max(len(lead) - whole - 1, 0):]])
     every = np.concatenate([prior, written])          # samples -(whole + 1) .. N - 1
-    now = every[1:N + 1]
-    before = every[:N]
     B = B_now + B_before
     Q = np.outer(B, B) * INPUT_NOISE ** 2 + np.eye(n) * 1e-12
-    P = solve_discrete_are(Ad.T, C.T, Q, R)           # the a priori covariance, steady
-    gain = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
-    P_after = P - gain @ C @ P
-    smoother = P_after @ Ad.T @ np.linalg.inv(P)
+    steady = solve_discrete_are(Ad.T, C.T, Q, R)      # the a priori covariance, settled
+    return dict(Ad=Ad, B_before=B_before, B_now=B_now, C=C, friction=friction, states=states, y=y, R=R, N=N,
+                now=every[1:N + 1], before=every[:N], Q=Q, steady=steady)
+
+
+def start_covariance(experiment, target, values: Mapping[str, float]) -> tuple[list[str], np.ndarray]:
+    """(the plant's linearized states: theta0, dtheta0, ..., their covariance) at the first
+    sample of a balancing log as its smoother knows them from the whole log (the
+    Rauch-Tung-Striebel covariance, from a diffuse start) on the plant at ``values``; the
+    Coulomb friction left out."""
+    from scipy.linalg import solve_discrete_lyapunov
+
+    m = _setup(experiment, target, values)
+    _, smoothers, afters, followings = _gains(m["Ad"], m["C"], m["Q"], m["R"], m["steady"], m["N"],
+                                              covariances=True)
+    # the settled smoothed covariance S = P+ + G (S - P-) G^T, then back to the first sample
+    G = smoothers[-1]
+    S = solve_discrete_lyapunov(G, afters[-1] - G @ followings[-1] @ G.T)
+    for k in range(len(smoothers) - 2, -1, -1):
+        G = smoothers[k]
+        S = afters[k] + G @ (S - followings[k]) @ G.T
+    return m["states"], 0.5 * (S + S.T)
+
+
+def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The two angles' measurement errors of ``experiment`` (logged minus estimated true
+    angle, rad, one value per sample), on the plant at ``values``."""
+    m = _setup(experiment, target, values)
+    Ad, B_before, B_now, C, friction, y, N = (m[k] for k in ("Ad", "B_before", "B_now", "C", "friction", "y", "N"))
+    n = Ad.shape[0]
+    before, now = m["before"], m["now"]
+    gains, smoothers = _gains(Ad, C, m["Q"], m["R"], m["steady"], N)
     driven = np.outer(before, B_before) + np.outer(now, B_now)   # what the voltage adds, per sample
 
     def smooth(known: np.ndarray) -> np.ndarray:
@@ -146,12 +177,12 @@ def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np
         x = np.linalg.lstsq(C, y[0], rcond=None)[0]
         for k in range(N):
             predicted[k] = x
-            filtered[k] = x + gain @ (y[k] - C @ x)
+            filtered[k] = x + gains[min(k, len(gains) - 1)] @ (y[k] - C @ x)
             if k + 1 < N:
                 x = Ad @ filtered[k] + known[k]
         smoothed = filtered.copy()
         for k in range(N - 2, -1, -1):
-            smoothed[k] = filtered[k] + smoother @ (smoothed[k + 1] - predicted[k + 1])
+            smoothed[k] = filtered[k] + smoothers[min(k, len(smoothers) - 1)] @ (smoothed[k + 1] - predicted[k + 1])
         return smoothed
 
     smoothed = smooth(driven)
@@ -172,6 +203,28 @@ def estimated_noise(experiment, target, values: Mapping[str, float]) -> tuple[np
             smoothed = smooth(driven + torque @ Bt.T)
     angles = smoothed @ C[:2].T
     return y[:, 0] - angles[:, 0], y[:, 1] - angles[:, 1]
+
+
+def _gains(Ad, C, Q, R, steady, samples: int, covariances: bool = False) -> tuple:
+    """The Kalman gains and the smoother's gains of the first samples (the last of each holds
+    from there on): from a diffuse start (DIFFUSE times the settled covariance: the state at
+    the log's first sample is known from its first reading alone, rates not at all) until the
+    covariance has settled to within SETTLED of ``steady``. With ``covariances``, also each
+    sample's covariance after its reading and before the next."""
+    P = DIFFUSE * steady
+    gains, smoothers, afters, followings = [], [], [], []
+    for _ in range(samples):
+        gain = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+        after = P - gain @ C @ P
+        following = Ad @ after @ Ad.T + Q
+        gains.append(gain)
+        smoothers.append(after @ Ad.T @ np.linalg.inv(following))
+        afters.append(after)
+        followings.append(following)
+        if np.max(np.abs(following - steady)) <= SETTLED * np.max(np.abs(steady)):
+            break
+        P = following
+    return (gains, smoothers, afters, followings) if covariances else (gains, smoothers)
 
 
 def with_estimate(experiment, target):

@@ -18,7 +18,7 @@ a swing is the same misfit for hundreds of samples), so the textbook covariance
 (experiment, output) series, summed over lags with Bartlett weights up to a window chosen
 from the series' own integrated autocorrelation time (Sokal's rule: the smallest window
 M >= 5 tau(M)). Intervals are value +- 1.96 standard errors (95 %), widened on each side by
-the reach of the start angles a log's counts give (identify/reach.py).
+the reach of the start state a log gives (identify/reach.py).
 """
 
 from __future__ import annotations
@@ -43,9 +43,11 @@ NOT_SEPARABLE = 0.95
 FAILED_RESIDUAL = 1e4
 _INTERVALS = ("Newey-West sandwich covariance (Bartlett weights, window from each residual "
               "series' integrated autocorrelation time); 95 % = +-1.96 standard errors")
-_REACH = ("; widened on each side by the reach of the counted start angles (the largest move of the "
-          "value over the corners of half an encoder count up or down from the logged ones, "
-          "identify/reach.py)")
+_REACH = ("; widened on each side by the reach of the start state the logs give: of the counted start "
+          "angles (the largest move of the value over the corners of half an encoder count up or down "
+          "from the logged ones) and of a balancing log's freed start rates (each held one standard "
+          "deviation of its smoother's estimate up and down, the moves propagated to 95 % through their "
+          "correlation), added (identify/reach.py)")
 
 # -- evaluation in workers ----------------------------------------------------------------
 _CONTEXT: dict = {}

@@ -22,6 +22,17 @@ profile's, or the bootstrap's) widened by the reach on each side. On a 6 s synth
 log the reach took 16 simulations, and a whole fit again from a corner's start moved each value
 by 0.83 to 1.18 times its reach: within the reach plus a fifth of the value's standard error
 (the fits' own convergence).
+
+A window cut from a balancing log mid-run starts with rates no reading shows: freed, the fit
+takes them as unknowns, and they take up the counted angles' offsets, so the angles' reach is
+small there; but the fitted values then follow the rates' own uncertainty, which the sandwich
+underestimates (on ten synthetic balancing windows with their rates freed, the truth was within
+every sandwich-and-angles interval on 2). What the log knows of the rates is what the smoother
+of identify/estimate.py knows of them at the window's first sample (its Rauch-Tung-Striebel
+covariance, about 0.008 rad/s on those logs): each freed rate is held one such standard
+deviation up and down while the other unknowns follow (first order, the fit's Jacobian), and
+the moves are propagated to 95 % through the rates' correlation and added to the angles'
+reach. A held rate's own reach is its smoothed 95 %.
 """
 
 from __future__ import annotations
@@ -36,6 +47,8 @@ import numpy as np
 from furuta_cosim.identify.experiment import Experiment, Free
 
 ANGLES = ("theta0", "theta1")
+RATES = ("dtheta0", "dtheta1")
+Z95 = 1.959963984540054
 
 
 def counted_angles(experiment: Experiment) -> list[tuple[str, float, float]]:
@@ -58,7 +71,7 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
     """(name -> reach in the unknown's own unit, what it rests on) of each seen unknown of a
     fit at ``x`` (scaled, as fit.py's Problem holds it) with Jacobian ``J`` (its ``seen``
     columns, the fitted experiments' weighted residual rows). Empty when no fitted log starts
-    from counted angles."""
+    from counted angles or frees the start rates of a balancing log."""
     from furuta_cosim.identify.fit import Problem, Runner, Unknown
 
     freed, extra = [], []
@@ -69,27 +82,70 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
             extra.append(Unknown(f"{experiment.name}.{angle}", value, (value - quantum, value + quantum), quantum))
         changed = start != dict(experiment.start)
         freed.append(replace(experiment, start=type(experiment.start)(start)) if changed else experiment)
-    if not extra or not len(seen):
+    spreads = _rate_spreads(target, experiments, items, x, seen)
+    if (not extra and not spreads) or not len(seen):
         return {}, {}
     runner = Runner(target, freed, workers, dask)
+    moves, how = [np.zeros(len(seen))], []
     try:
         problem = Problem(runner, freed, list(items) + extra, None, math.inf, lambda *a: None)
         base = np.concatenate([np.asarray(x, dtype=float), [u.start / u.scale for u in extra]])
         lower = np.array([items[k].bounds[0] / items[k].scale for k in seen])
         upper = np.array([items[k].bounds[1] / items[k].scale for k in seen])
-        if len(extra) <= CORNERS:
-            corners = [np.array(c) for c in itertools.product((0.5, -0.5), repeat=len(extra))]
-            moves = _refit(problem, base, J, seen, corners, lower, upper)
-            how = f"refitted at each of the {len(moves)} corners"
-        else:
+        if extra and len(extra) <= CORNERS:
+            moves = _refit(problem, base, J, seen, [np.array(c) for c in
+                                                    itertools.product((0.5, -0.5), repeat=len(extra))], lower, upper)
+            how.append(f"the angles refitted at each of the {len(moves)} corners")
+        elif extra:
             moves = _linear(problem, base, J, len(extra))
-            how = "to first order, summed over the angles"
+            how.append("the angles to first order, summed")
+        rates = np.zeros(len(seen))
+        if spreads:  # the key None holds their correlations
+            rates = _held_rates(problem, base, J, seen, spreads)
+            how.append("the freed start rates held by their smoothed spread, the rest refitted, to first order, "
+                       "propagated to 95 % and added")
         simulations = runner.count
     finally:
         runner.close()
-    moves = np.abs(np.array(moves))
-    reach = {items[k].name: float(np.max(moves[:, row]) * items[k].scale) for row, k in enumerate(seen)}
-    return reach, {"angles": [u.name for u in extra], "simulations": simulations, "how": how}
+    moves = np.max(np.abs(np.array(moves)), axis=0) + rates
+    reach = {items[k].name: float(moves[row] * items[k].scale) for row, k in enumerate(seen)}
+    rates = {n: Z95 * sigma for n, (_, sigma) in ((n, v) for n, v in spreads.items() if n is not None)}
+    for name, delta in rates.items():   # a held rate: its own smoothed 95 %
+        reach[name] = max(reach[name], delta)
+    return reach, {"angles": [u.name for u in extra], "rates": rates,
+                   "simulations": simulations, "how": "; ".join(how)}
+
+
+def _rate_spreads(target, experiments, items, x, seen) -> dict[str, tuple[int, float]]:
+    """name -> (its row among ``seen``, its standard deviation) of each freed start rate of a
+    log whose angles are estimated (a balancing log), as its smoother knows it from the log
+    (identify/estimate.py) at the fitted values; and under the key None, their correlations
+    (one block per log)."""
+    from furuta_cosim.identify.estimate import start_covariance
+
+    values = {u.name: float(v) * u.scale for u, v in zip(items, x)}
+    plant = {k: v for k, v in values.items() if "." not in k}
+    row_of = {items[k].name: row for row, k in enumerate(seen)}
+    found, blocks = {}, []
+    for experiment in experiments:
+        if experiment.loop is None or not experiment.loop.estimate:
+            continue
+        rates = [r for r in RATES if f"{experiment.name}.{r}" in row_of]
+        if not rates:
+            continue
+        states, S = start_covariance(experiment, target, {**experiment.parameters, **plant})
+        rates = [r for r in rates if r in states]
+        index = [states.index(r) for r in rates]
+        block = S[np.ix_(index, index)]
+        sigma = np.sqrt(np.diag(block))
+        blocks.append(block / np.outer(sigma, sigma))
+        for rate, s in zip(rates, sigma):
+            found[f"{experiment.name}.{rate}"] = (row_of[f"{experiment.name}.{rate}"], float(s))
+    if found:
+        from scipy.linalg import block_diag
+
+        found[None] = block_diag(*blocks)
+    return found
 
 
 CORNERS = 3          # up to this many counted angles, each corner of their box is refitted
@@ -137,6 +193,30 @@ def _linear(problem, base: np.ndarray, J: np.ndarray, angles: int) -> list[np.nd
     D = np.column_stack([(results[2 * j] - results[2 * j + 1]) / 2.0 for j in range(angles)])
     response = np.linalg.lstsq(J, D, rcond=None)[0]
     return [np.sum(np.abs(response), axis=1)]
+
+
+def _held_rates(problem, base: np.ndarray, J: np.ndarray, seen, spreads: dict) -> np.ndarray:
+    """The 95 % move of each seen unknown that the freed start rates' uncertainty carries:
+    each rate held one standard deviation up and down (central difference) while the other
+    seen unknowns follow to first order (least squares on the fit's Jacobian without the held
+    columns), the moves propagated through the rates' correlations."""
+    rates = [(row, sigma) for name, (row, sigma) in ((n, v) for n, v in spreads.items() if n is not None)]
+    held = [row for row, _ in rates]
+    keep = [row for row in range(len(seen)) if row not in held]
+    shifted = []
+    for row, sigma in rates:
+        k = seen[row]
+        for sign in (1.0, -1.0):
+            point = base.copy()
+            point[k] += sign * sigma / problem.items[k].scale
+            shifted.append(point)
+    results = problem._evaluate(shifted)
+    D = np.column_stack([(results[2 * j] - results[2 * j + 1]) / 2.0 for j in range(len(held))])
+    moves = np.zeros(len(seen))
+    if keep:
+        M = np.linalg.lstsq(J[:, keep], D, rcond=None)[0]     # per standard deviation of each rate
+        moves[keep] = Z95 * np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", M, spreads[None], M), 0.0))
+    return moves
 
 
 def widened(interval, reach: float | None):

@@ -330,8 +330,9 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
                          if "." not in n and result.values[n]), reverse=True)[:3]
     if widest:   # a plant parameter's reach (an initial state's alone is in fit.json)
         verdict["notes"].append(
-            "every interval is widened by the reach of the start angles the logs' counts give (each "
-            "anywhere within half a count): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
+            "every interval is widened by the reach of the start state the logs give (each counted angle "
+            "anywhere within half a count, each freed rate of a balancing log within what its smoother "
+            "knows): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
             + " (docs: Your own rig, What the data can tell)")
     for e in result.spec.experiments:
         if e.loop is not None and e.loop.lead_in is not None:   # a window cut from a run
