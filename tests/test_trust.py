@@ -203,13 +203,20 @@ def test_a_window_cut_mid_run_starts_its_loop_where_the_rig_left_it(logs, tmp_pa
 
 @pytest.mark.slow
 def test_a_fit_of_a_window_cut_mid_run_says_so_in_its_verdict(logs, tmp_path, capsys):
-    """Such a window's intervals hold the truth less often than a whole log's: the verdict says
-    where the window starts and to check it against a fit of the whole log; a whole log's does not."""
+    """Such a window's freed start rates widen its intervals by what the log's smoother knows of
+    them, and the verdict says where the window starts; a whole log's does not. A window that
+    keeps the run's start rates where the rig was moving is not trusted."""
     def window(d):
         d.update(window=[2.0, 5.0])
         d["start"].update(i="data", dtheta0={"free": [-3.0, 3.0]}, dtheta1={"free": [-3.0, 3.0]})
 
-    for name, change, said in (("cut", window, True), ("whole", lambda d: None, False)):
+    from furuta_cosim.identify.verdict import STATED_START
+
+    def kept(d):   # the run's start rates (0) kept where the rig was moving
+        d.update(window=[2.0, 5.0])
+        d["start"].update(i="data")
+
+    for name, change, said in (("cut", window, True), ("whole", lambda d: None, False), ("kept", kept, True)):
         folder = tmp_path / name
         folder.mkdir()
         spec = _spec(folder, logs, change, off=0.1)
@@ -218,8 +225,25 @@ def test_a_fit_of_a_window_cut_mid_run_says_so_in_its_verdict(logs, tmp_path, ca
         spec.write_text(yaml.safe_dump(data, sort_keys=False))
         code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(folder / "fit"), "--workers", "1",
                                  "--no-profiles")
-        assert code == 0, (out, err)
         document = json.loads((folder / "fit" / "fit.json").read_text())
+        if name == "kept":   # the stated rates, judged against the log: refused and said, or they
+            # did not mislead the fit (the truth within its interval)
+            rates = document["stated_starts"]["fitted"]
+            assert sorted(rates) == ["dtheta0", "dtheta1"] and all(c["stated"] == 0.0 for c in rates.values())
+            off = max(abs(c["stated"] - c["estimate"]) / c["sigma"] for c in rates.values())
+            if off > STATED_START:
+                assert code == 1 and not document["verdict"]["trusted"], (out, err)
+                assert any(r.startswith("fitted: its stated start dtheta") for r in
+                           document["verdict"]["reasons"]), document["verdict"]["reasons"]
+            else:
+                low, high = document["parameters"]["R_a"]["interval"]
+                assert low <= TRUE["R_a"] <= high, (off, low, high)
+            continue
+        assert code == 0, (out, err)
+        for rates in (document.get("stated_starts") or {}).values():   # a whole log's rest start stands
+            # (measured 2.7 and 4.1 deviations: the synthetic pendulum falls for the board's 4 ms
+            # before the run's first sample)
+            assert all(abs(c["stated"] - c["estimate"]) < STATED_START * c["sigma"] for c in rates.values()), rates
         notes = document["verdict"]["notes"]
         mid_run = [n for n in notes if "starts mid-run" in n]
         if said:   # its freed start rates widen the intervals by what the smoother knows of them
@@ -398,3 +422,24 @@ def test_a_start_half_a_count_off_moves_the_fit_within_its_reach(logs, tmp_path,
         assert move <= reach + 0.3 * p["stderr"], (name, move, reach, p["stderr"])
         ratios.append(move / reach)
     assert max(ratios) > 0.5, ratios   # and the bound is not idle
+
+
+def test_a_stated_start_rate_the_log_contradicts_is_a_reason():
+    """A balancing log's stated start rate, judged against its smoother at the fitted values:
+    within STATED_START standard deviations it stands, beyond it the fit is not trusted, with
+    the log, the rate, how far and the next step."""
+    from furuta_cosim.identify.verdict import STATED_START
+
+    def document(stated: float) -> dict:
+        found = _document(1.0 * QUANTUM, 2.0 * QUANTUM, "cut")
+        found["stated_starts"] = {"cut": {"dtheta1": {"stated": stated, "estimate": -0.12, "sigma": 0.008,
+                                                      "at": 2.0}}}
+        return found
+
+    assert judge(document(-0.12 + 0.9 * STATED_START * 0.008), {})["trusted"]
+    verdict = judge(document(0.0), {})
+    assert not verdict["trusted"]
+    [reason] = verdict["reasons"]
+    assert reason.startswith("cut: its stated start dtheta1 = 0 rad/s is 15 standard deviations from what its "
+                             "log shows at t = 2 s (-0.12 +- 0.008 rad/s"), reason
+    assert "free it" in reason and "free that log's start rates" in verdict["next"]

@@ -29,10 +29,12 @@ small there; but the fitted values then follow the rates' own uncertainty, which
 underestimates (on ten synthetic balancing windows with their rates freed, the truth was within
 every sandwich-and-angles interval on 2). What the log knows of the rates is what the smoother
 of identify/estimate.py knows of them at the window's first sample (its Rauch-Tung-Striebel
-covariance, about 0.008 rad/s on those logs): each freed rate is held one such standard
-deviation up and down while the other unknowns follow (first order, the fit's Jacobian), and
-the moves are propagated to 95 % through the rates' correlation and added to the angles'
-reach. A held rate's own reach is its smoothed 95 %.
+covariance, about 0.008 rad/s on those logs; the fitted rates were up to 4 of those from the
+smoother's estimates): each freed rate is held one such standard deviation up and down while
+the other unknowns follow (first order, the fit's Jacobian), and the reach is the move that
+takes the rates to the smoother's estimates plus the 95 % spread about them (propagated
+through the rates' correlation), added to the angles' reach. A freed rate's own reach is its
+distance to the smoother's estimate plus its smoothed 95 %.
 """
 
 from __future__ import annotations
@@ -102,26 +104,27 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
         rates = np.zeros(len(seen))
         if spreads:  # the key None holds their correlations
             rates = _held_rates(problem, base, J, seen, spreads)
-            how.append("the freed start rates held by their smoothed spread, the rest refitted, to first order, "
-                       "propagated to 95 % and added")
+            how.append("the freed start rates moved to their smoother's estimates and held by its spread, the rest "
+                       "refitted, to first order, propagated to 95 % and added")
         simulations = runner.count
     finally:
         runner.close()
     moves = np.max(np.abs(np.array(moves)), axis=0) + rates
     reach = {items[k].name: float(moves[row] * items[k].scale) for row, k in enumerate(seen)}
-    rates = {n: Z95 * sigma for n, (_, sigma) in ((n, v) for n, v in spreads.items() if n is not None)}
-    for name, delta in rates.items():   # a held rate: its own smoothed 95 %
-        reach[name] = max(reach[name], delta)
+    rates = {n: Z95 * sigma for n, (_, sigma, _) in ((n, v) for n, v in spreads.items() if n is not None)}
+    for name, (_, sigma, off) in ((n, v) for n, v in spreads.items() if n is not None):
+        # a held rate: as far as the smoother's estimate, and its smoothed 95 %
+        reach[name] = max(reach[name], (abs(off) + Z95) * sigma)
     return reach, {"angles": [u.name for u in extra], "rates": rates,
                    "simulations": simulations, "how": "; ".join(how)}
 
 
-def _rate_spreads(target, experiments, items, x, seen) -> dict[str, tuple[int, float]]:
-    """name -> (its row among ``seen``, its standard deviation) of each freed start rate of a
-    log whose angles are estimated (a balancing log), as its smoother knows it from the log
-    (identify/estimate.py) at the fitted values; and under the key None, their correlations
-    (one block per log)."""
-    from furuta_cosim.identify.estimate import start_covariance
+def _rate_spreads(target, experiments, items, x, seen) -> dict:
+    """name -> (its row among ``seen``, its standard deviation, where it lies from the fitted
+    rate in standard deviations) of each freed start rate of a log whose angles are estimated
+    (a balancing log), as its smoother knows it from the log (identify/estimate.py) at the
+    fitted values; and under the key None, their correlations (one block per log)."""
+    from furuta_cosim.identify.estimate import start_covariance, start_estimate
 
     values = {u.name: float(v) * u.scale for u, v in zip(items, x)}
     plant = {k: v for k, v in values.items() if "." not in k}
@@ -133,14 +136,17 @@ def _rate_spreads(target, experiments, items, x, seen) -> dict[str, tuple[int, f
         rates = [r for r in RATES if f"{experiment.name}.{r}" in row_of]
         if not rates:
             continue
-        states, S = start_covariance(experiment, target, {**experiment.parameters, **plant})
+        at = {**experiment.parameters, **plant}
+        states, S = start_covariance(experiment, target, at)
+        estimate = start_estimate(experiment, target, at)
         rates = [r for r in rates if r in states]
         index = [states.index(r) for r in rates]
         block = S[np.ix_(index, index)]
         sigma = np.sqrt(np.diag(block))
         blocks.append(block / np.outer(sigma, sigma))
         for rate, s in zip(rates, sigma):
-            found[f"{experiment.name}.{rate}"] = (row_of[f"{experiment.name}.{rate}"], float(s))
+            name = f"{experiment.name}.{rate}"
+            found[name] = (row_of[name], float(s), (estimate[rate][0] - values[name]) / float(s))
     if found:
         from scipy.linalg import block_diag
 
@@ -196,15 +202,16 @@ def _linear(problem, base: np.ndarray, J: np.ndarray, angles: int) -> list[np.nd
 
 
 def _held_rates(problem, base: np.ndarray, J: np.ndarray, seen, spreads: dict) -> np.ndarray:
-    """The 95 % move of each seen unknown that the freed start rates' uncertainty carries:
-    each rate held one standard deviation up and down (central difference) while the other
-    seen unknowns follow to first order (least squares on the fit's Jacobian without the held
-    columns), the moves propagated through the rates' correlations."""
-    rates = [(row, sigma) for name, (row, sigma) in ((n, v) for n, v in spreads.items() if n is not None)]
-    held = [row for row, _ in rates]
+    """The move of each seen unknown that the freed start rates carry, were they where their
+    smoother puts them: each rate held one standard deviation up and down (central difference)
+    while the other seen unknowns follow to first order (least squares on the fit's Jacobian
+    without the held columns); the move to the smoother's estimates plus their 95 % spread,
+    propagated through the rates' correlation."""
+    rates = [v for n, v in spreads.items() if n is not None]
+    held = [row for row, _, _ in rates]
     keep = [row for row in range(len(seen)) if row not in held]
     shifted = []
-    for row, sigma in rates:
+    for row, sigma, _ in rates:
         k = seen[row]
         for sign in (1.0, -1.0):
             point = base.copy()
@@ -215,7 +222,8 @@ def _held_rates(problem, base: np.ndarray, J: np.ndarray, seen, spreads: dict) -
     moves = np.zeros(len(seen))
     if keep:
         M = np.linalg.lstsq(J[:, keep], D, rcond=None)[0]     # per standard deviation of each rate
-        moves[keep] = Z95 * np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", M, spreads[None], M), 0.0))
+        toward = M @ np.array([d for _, _, d in rates])
+        moves[keep] = np.abs(toward) + Z95 * np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", M, spreads[None], M), 0.0))
     return moves
 
 

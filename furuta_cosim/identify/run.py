@@ -158,6 +158,28 @@ def _figures(out: Path, name: str, members) -> list[Path]:
     return [p for p in written if p.suffix == ".png"]
 
 
+def _stated_starts(experiments, target, values: dict) -> dict:
+    """Per fitted balancing log (its angles estimated) whose start rates are stated (a number, or the
+    slope of its first counts), what its smoother at the fitted ``values`` puts them at:
+    {log: {rate: {stated, estimate, sigma}}} (identify/estimate.py start_estimate; judged in
+    identify/verdict.py)."""
+    from furuta_cosim.identify.estimate import start_estimate
+    from furuta_cosim.identify.experiment import Free
+
+    found = {}
+    plant = {k: v for k, v in values.items() if "." not in k}
+    for e in experiments:
+        if e.loop is None or not e.loop.estimate:
+            continue
+        rates = {r: float(v) for r, v in e.start.items() if r in ("dtheta0", "dtheta1") and not isinstance(v, Free)}
+        if not rates:
+            continue
+        estimate = start_estimate(e, target, {**e.parameters, **plant})
+        found[e.name] = {r: {"stated": v, "estimate": estimate[r][0], "sigma": estimate[r][1],
+                             "at": float(e.t[0])} for r, v in rates.items() if r in estimate}
+    return found
+
+
 def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, dask: str | None = None,
              fmi_version: str = "2.0", resume: bool = False, starts: int = 1, profiles: bool = True,
              bootstrap: int = 0, seed: int = 0, holdout: float | None = None,
@@ -287,10 +309,13 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
     ranges = physical_ranges(target)
     if whole:
         document["whole"] = _whole_replays(whole, target, result.values)
+    stated = _stated_starts(result.spec.experiments, target, result.values)
+    if stated:
+        document["stated_starts"] = stated
     converged = not result.message.startswith("stopped")
     # the verdict on the replays alone, before the profiles spend anything: a fit that does not
     # reproduce its data, or is worse than its start, is not trusted whatever its intervals
-    replays = [r for r in judge(document, ranges, spec.tolerance)["reasons"] if "replay" in r]
+    replays = [r for r in judge(document, ranges, spec.tolerance)["reasons"] if "replay" in r or "stated start" in r]
     skipped = None
     if profiles and not converged:
         skipped = "not profiled: the fit did not converge"

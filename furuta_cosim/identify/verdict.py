@@ -12,6 +12,14 @@ something physical:
   plant, is not a better plant whatever the tolerance (a fit that replays at 19.7 floors
   where the start values replayed at 7 passes the tolerance alone); an output already at its
   noise may move within it;
+- no start rate a balancing log states (a number, or the slope of its first counts) is more
+  than :data:`STATED_START` standard deviations from what the log's smoother (identify/
+  estimate.py), at the fitted values, puts it at: a window cut mid-run that keeps the run's
+  start rates of 0 was trusted on one of ten synthetic logs with its values out of their
+  intervals, its stated rates 31.8 standard deviations off; whole synthetic logs stated at
+  rest read 2.7 to 5.6 (their pendulum has fallen for 4 ms at the first row, and the smoother
+  is biased by up to 2); windows cut mid-run 9 to 35. At start values 20 to 60 % off the
+  smoother can be tens away, so this is judged after the fit, not before;
 - the fit ran to its end (not stopped by its spec's ``max_simulations``);
 - no 95 % interval of a plant parameter reaches across a strict physical bound (a
   resistance or an inertia at or below 0): the data do not tell that parameter; nor, for a
@@ -43,6 +51,7 @@ TOLERANCE = 20.0   # noise floors (quanta, or noise standard deviations) of repl
 WORSE = 0.05       # an output replaying this fraction worse than at the start values is not a better fit
 FAR_ABOVE = 10.0     # a friction's interval below 0 and this many times its start above: not told
 WORSE_FLOORS = 0.5   # ... and by this many noise floors (within the encoder's resolution, outputs trade freely)
+STATED_START = 10.0  # standard deviations a stated start rate may be from the smoother's (whole logs: up to 5.6)
 
 _UNITS = {"theta0": "rad", "theta1": "rad", "i": "A", "dtheta0": "rad/s", "dtheta1": "rad/s"}
 
@@ -100,6 +109,15 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
                                "the log does not (a log the plant cannot run through open loop, a balancing one, is replayed "
                                "through its loop: give the experiment its `loop` key)".replace("  ", " "))
     reasons += _worse(document)
+    for name, rates in (document.get("stated_starts") or {}).items():
+        for rate, c in rates.items():
+            off = abs(c["stated"] - c["estimate"]) / c["sigma"] if c["sigma"] > 0 else math.inf
+            if off > STATED_START:
+                reasons.append(
+                    f"{name}: its stated start {rate} = {c['stated']:.4g} rad/s is {off:.3g} standard deviations "
+                    f"from what its log shows at t = {c['at']:g} s ({c['estimate']:.4g} +- {c['sigma']:.2g} rad/s, "
+                    f"its smoother at the fitted values): the fit followed a start the rig was not in; free it "
+                    f"(start: {{{rate}: {{free: [lo, hi]}}}})")
     if reasons:  # a column that reads far better another way is the first thing to check
         from furuta_cosim.identify.fit import far_line
         from furuta_cosim.identify.precheck import loop_line
@@ -234,6 +252,9 @@ def _next_step(reasons: list[str], document: dict) -> str:
     if any("check the unit, offset and sign of that column" in r for r in reasons):
         return ("read that column as named (its unit:, the sign, or its offset:) and fit again; the plant's "
                 "own units are rad, rad/s, A and V, the pendulum 0 upright")
+    if any("stated start" in r for r in reasons):
+        return ("free that log's start rates (start: {dtheta0: {free: [lo, hi]}, dtheta1: ...}); its intervals are "
+                "then widened by what its smoother knows of them")
     if any("worse than at the start" in r for r in reasons) and not any("replay RMS" in r for r in reasons):
         return ("check each log's start state (a window cut mid-motion needs its rates and current: "
                 "start: data) and the loop; or hold the parameters the data cannot tell")
