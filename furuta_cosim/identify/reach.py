@@ -1,5 +1,6 @@
-"""The reach of a fit's counted start angles: how far the fitted values can move because a
-log's first angles are known only to within an encoder count.
+"""The reach of a fit's start state: how far the fitted values can move because a log's first
+angles are known only to within an encoder count, and a freed start rate only to what the
+log's smoother knows of it.
 
 A replay starts from the state the experiment gives; ``start: data`` takes each angle from
 the log's first sample, which the encoder rounded to its nearest count, so the true start lies
