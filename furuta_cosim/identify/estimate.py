@@ -152,9 +152,14 @@ def start_covariance(experiment, target, values: Mapping[str, float]) -> tuple[l
     sample of a balancing log as its smoother knows them from the whole log (the
     Rauch-Tung-Striebel covariance, from a diffuse start) on the plant at ``values``; the
     Coulomb friction left out."""
+    m = _setup(experiment, target, values)
+    return m["states"], _start_covariance(m)
+
+
+def _start_covariance(m: dict) -> np.ndarray:
+    """The smoothed covariance at the first sample of the log :func:`_setup` gave ``m`` for."""
     from scipy.linalg import solve_discrete_lyapunov
 
-    m = _setup(experiment, target, values)
     _, smoothers, afters, followings = _gains(m["Ad"], m["C"], m["Q"], m["R"], m["steady"], m["N"],
                                               covariances=True)
     # the settled smoothed covariance S = P+ + G (S - P-) G^T, then back to the first sample
@@ -163,7 +168,7 @@ def start_covariance(experiment, target, values: Mapping[str, float]) -> tuple[l
     for k in range(len(smoothers) - 2, -1, -1):
         G = smoothers[k]
         S = afters[k] + G @ (S - followings[k]) @ G.T
-    return m["states"], 0.5 * (S + S.T)
+    return 0.5 * (S + S.T)
 
 
 def stated(experiment) -> dict[str, float]:
@@ -190,19 +195,28 @@ def start_estimate(experiment, target, values: Mapping[str, float]) -> dict[str,
     """state -> (its estimate, its standard deviation) at the first sample of a balancing log,
     as the smoother knows them from the log's readings alone on the plant at ``values`` (a
     diffuse start; the pendulum's angle from upright, in the log's turn)."""
-    m, smoothed = _smoothed(experiment, target, values, {})
-    states, S = start_covariance(experiment, target, values)
-    first = dict(zip(m["states"], smoothed[0]))
-    if "theta1" in first:
-        first["theta1"] += m["turns"]
-    return {name: (float(first[name]), float(math.sqrt(max(S[j, j], 0.0)))) for j, name in enumerate(states)}
+    states, first, S = start_state(experiment, target, values)
+    return {name: (float(first[j]), float(math.sqrt(max(S[j, j], 0.0)))) for j, name in enumerate(states)}
+
+
+def start_state(experiment, target, values: Mapping[str, float]) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(the plant's linearized states, their smoothed estimate, its covariance) at the first
+    sample of a balancing log from its readings alone (:func:`start_estimate`), the plant
+    linearized once."""
+    m = _setup(experiment, target, values)
+    _, smoothed = _smoothed(experiment, target, values, {}, m)
+    first = smoothed[0].copy()
+    if "theta1" in m["states"]:
+        first[m["states"].index("theta1")] += m["turns"]
+    return m["states"], first, _start_covariance(m)
 
 
 def _smoothed(experiment, target, values: Mapping[str, float],
-              rates: Mapping[str, float]) -> tuple[dict, np.ndarray]:
+              rates: Mapping[str, float], m: dict | None = None) -> tuple[dict, np.ndarray]:
     """(:func:`_setup`'s, the smoothed state at every sample) of ``experiment`` at ``values``:
-    from ``rates`` (rate state -> rad/s) with the settled covariance, or diffuse if none."""
-    m = _setup(experiment, target, values)
+    from ``rates`` (rate state -> rad/s) with the settled covariance, or diffuse if none; ``m``:
+    :func:`_setup`'s, if already made."""
+    m = _setup(experiment, target, values) if m is None else m
     Ad, B_before, B_now, C, friction, y, N = (m[k] for k in ("Ad", "B_before", "B_now", "C", "friction", "y", "N"))
     n = Ad.shape[0]
     before, now = m["before"], m["now"]

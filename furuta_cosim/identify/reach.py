@@ -125,7 +125,7 @@ def _rate_spreads(target, experiments, items, x, seen) -> dict:
     rate in standard deviations) of each freed start rate of a log whose angles are estimated
     (a balancing log), as its smoother knows it from the log (identify/estimate.py) at the
     fitted values; and under the key None, their correlations (one block per log)."""
-    from furuta_cosim.identify.estimate import start_covariance, start_estimate
+    from furuta_cosim.identify.estimate import start_state
 
     values = {u.name: float(v) * u.scale for u, v in zip(items, x)}
     plant = {k: v for k, v in values.items() if "." not in k}
@@ -138,8 +138,7 @@ def _rate_spreads(target, experiments, items, x, seen) -> dict:
         if not rates:
             continue
         at = {**experiment.parameters, **plant}
-        states, S = start_covariance(experiment, target, at)
-        estimate = start_estimate(experiment, target, at)
+        states, first, S = start_state(experiment, target, at)
         rates = [r for r in rates if r in states]
         index = [states.index(r) for r in rates]
         block = S[np.ix_(index, index)]
@@ -147,7 +146,7 @@ def _rate_spreads(target, experiments, items, x, seen) -> dict:
         blocks.append(block / np.outer(sigma, sigma))
         for rate, s in zip(rates, sigma):
             name = f"{experiment.name}.{rate}"
-            found[name] = (row_of[name], float(s), (estimate[rate][0] - values[name]) / float(s))
+            found[name] = (row_of[name], float(s), (first[states.index(rate)] - values[name]) / float(s))
     if found:
         from scipy.linalg import block_diag
 
