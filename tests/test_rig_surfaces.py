@@ -135,6 +135,7 @@ def _shipped_spec(folder: Path, **change) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_budget_that_runs_out_at_the_end_of_a_stage_gives_the_fit_so_far(tmp_path, capsys):
     """A budget spent exactly as stage 1 ends: stage 2 evaluates nothing. This was
     `min() arg is an empty sequence` after all the work. Where stage 1 ends (it moves with the

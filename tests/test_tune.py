@@ -58,6 +58,7 @@ def test_the_same_seed_gives_the_same_history(tmp_path):
     assert strip(history(tmp_path / "c")) != strip(history(tmp_path / "a"))
 
 
+@pytest.mark.slow
 def test_random_search_writes_the_same_history_format(tmp_path):
     spec = load_spec("paper-spectral")
     document = tune(spec, tmp_path / "r", method="random", n_calls=8)
@@ -346,6 +347,7 @@ def test_a_resumed_history_from_another_optimizer_is_refused(tmp_path):
     assert len(history(tmp_path / "run")) == design + 2
 
 
+@pytest.mark.slow
 def test_baselines_and_initial_controllers_start_the_search(tmp_path):
     """lqr-paper enters the design of effort as its design point (continuous here), bo-paper
     (Cc fixed to another matrix) is named with the reason, and the best is never worse than
