@@ -72,6 +72,7 @@ def test_resume_refuses_other_variants_fit_or_plant_content(tmp_path, capsys):
     assert len((run / "history.jsonl").read_text().splitlines()) == lines  # nothing was added
 
 
+@pytest.mark.slow
 def test_resume_refuses_a_plant_file_whose_values_changed(tmp_path, capsys):
     plant = tmp_path / "rig.yaml"
     plant.write_text("model: furuta\nextends: paper-calibrated\nparameters: {C1: 2.0e-3}\n")
@@ -236,6 +237,7 @@ def test_identify_on_workers_leaves_no_folder_in_the_temporary_directory(tmp_pat
     assert list(temporary.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_the_fit_is_written_before_the_figures(tmp_path, monkeypatch):
     """A full disk (here: a figure that cannot be drawn) keeps plant.yaml and fit.json."""
     import furuta_cosim.identify.run as run
