@@ -202,6 +202,25 @@ def test_the_smoother_sees_the_true_angles_better_than_the_counts(logs):
     assert np.all(raw > 0.25) and np.all(smoothed < 0.5 * raw), (raw, smoothed)   # measured 0.3 vs 0.06
 
 
+def test_the_smoother_s_own_error_is_drawn_from_its_noise_model(logs):
+    """A draw of the smoother's error (what it makes of reading noise alone: the reach of a
+    balancing fit adds its effect) is reproducible by its seed, another seed another draw, and
+    below the counts' own rounding, as the smoother's real error is (on this log: the draws
+    0.04 and 0.03 quanta RMS, the real error 0.06, the counts' 0.3)."""
+    from furuta_cosim.identify.estimate import noise_draw
+    from furuta_cosim.identify.replay import target_for
+
+    experiment = load_experiment(logs["lqr"])
+    target = target_for(plant="qube-servo-3")
+    first, again, other = (np.column_stack(noise_draw(experiment, target, {}, seed)) for seed in (1, 1, 2))
+    np.testing.assert_array_equal(first, again)
+    assert not np.allclose(first, other)
+    for draw in (first, other):
+        assert draw.shape == (experiment.samples, 2) and np.all(np.isfinite(draw))
+        rms = np.sqrt(np.mean(draw ** 2, axis=0)) / QUANTUM
+        assert np.all((0.003 < rms) & (rms < 0.5 / math.sqrt(12))), rms
+
+
 def test_segments_start_from_the_measured_state(logs):
     from furuta_cosim.identify.split import segments, split
 

@@ -218,7 +218,6 @@ def _smoothed(experiment, target, values: Mapping[str, float],
     :func:`_setup`'s, if already made."""
     m = _setup(experiment, target, values) if m is None else m
     Ad, B_before, B_now, C, friction, y, N = (m[k] for k in ("Ad", "B_before", "B_now", "C", "friction", "y", "N"))
-    n = Ad.shape[0]
     before, now = m["before"], m["now"]
     gains, smoothers = _gains(Ad, C, m["Q"], m["R"], m["steady"], N, diffuse=not rates)
     driven = np.outer(before, B_before) + np.outer(now, B_now)   # what the voltage adds, per sample
@@ -228,17 +227,7 @@ def _smoothed(experiment, target, values: Mapping[str, float],
             start[m["states"].index(name)] = value
 
     def smooth(known: np.ndarray) -> np.ndarray:
-        predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
-        x = start
-        for k in range(N):
-            predicted[k] = x
-            filtered[k] = x + gains[min(k, len(gains) - 1)] @ (y[k] - C @ x)
-            if k + 1 < N:
-                x = Ad @ filtered[k] + known[k]
-        smoothed = filtered.copy()
-        for k in range(N - 2, -1, -1):
-            smoothed[k] = filtered[k] + smoothers[min(k, len(smoothers) - 1)] @ (smoothed[k + 1] - predicted[k + 1])
-        return smoothed
+        return _pass(Ad, C, gains, smoothers, start, y, known)
 
     smoothed = smooth(driven)
     if friction is not None:
@@ -257,6 +246,38 @@ def _smoothed(experiment, target, values: Mapping[str, float],
                 break
             smoothed = smooth(driven + torque @ Bt.T)
     return m, smoothed
+
+
+def _pass(Ad, C, gains, smoothers, start: np.ndarray, y: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """The smoothed state at every sample of the readings ``y``: the Kalman filter forward from
+    ``start`` (``known``: what the inputs add over each sample), the smoother's gains back."""
+    N, n = len(y), Ad.shape[0]
+    predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
+    x = start
+    for k in range(N):
+        predicted[k] = x
+        filtered[k] = x + gains[min(k, len(gains) - 1)] @ (y[k] - C @ x)
+        if k + 1 < N:
+            x = Ad @ filtered[k] + known[k]
+    smoothed = filtered.copy()
+    for k in range(N - 2, -1, -1):
+        smoothed[k] = filtered[k] + smoothers[min(k, len(smoothers) - 1)] @ (smoothed[k + 1] - predicted[k + 1])
+    return smoothed
+
+
+def noise_draw(experiment, target, values: Mapping[str, float], seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """What the smoother of ``experiment`` at ``values`` makes of reading noise alone (each
+    reading's stated noise, Gaussian, drawn with ``seed``; no input, the start as the log's own
+    smoother starts): the two angles' estimates (rad per sample), a draw of its estimate's error
+    under its own noise model. Added to :func:`estimated_noise`, it moves what a replay's
+    controller sees as the smoother's own error could (identify/reach.py)."""
+    m = _setup(experiment, target, values)
+    C = m["C"]
+    readings = np.random.default_rng(seed).standard_normal(m["y"].shape) * np.sqrt(np.diag(m["R"]))
+    gains, smoothers = _gains(m["Ad"], C, m["Q"], m["R"], m["steady"], m["N"], diffuse=not stated(experiment))
+    start = np.linalg.lstsq(C, readings[0], rcond=None)[0]
+    angles = _pass(m["Ad"], C, gains, smoothers, start, readings, np.zeros((m["N"], m["Ad"].shape[0]))) @ C[:2].T
+    return angles[:, 0], angles[:, 1]
 
 
 def _gains(Ad, C, Q, R, steady, samples: int, covariances: bool = False, diffuse: bool = True) -> tuple:

@@ -47,7 +47,8 @@ _REACH = ("; widened on each side by the reach of the start state the logs give:
           "angles (the largest move of the value over the corners of half an encoder count up or down "
           "from the logged ones) and of a balancing log's freed start rates (each held one standard "
           "deviation of its smoother's estimate up and down, the moves propagated to 95 % through their "
-          "correlation), added (identify/reach.py)")
+          "correlation), and of a balancing log's smoother's own error (8 draws of it, the mean move and "
+          "its 95 % spread), added (identify/reach.py)")
 
 # -- evaluation in workers ----------------------------------------------------------------
 _CONTEXT: dict = {}

@@ -439,6 +439,11 @@ def _runtime(loop, period: float):
     return _RUNTIMES[key][1]
 
 
+# ``<experiment>.noise_draw`` in a replay's values: a draw (its seed, > 0) of the smoother's own
+# error added to the angles its controller sees (estimate.noise_draw); 0 or absent: none
+NOISE_DRAW = "noise_draw"
+
+
 def closed_loop(session, target: Target, experiment: Experiment,
                 values: Mapping[str, float] | None = None,
                 phase: float = 0.0) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -474,7 +479,14 @@ def closed_loop(session, target: Target, experiment: Experiment,
     if loop.estimate:
         from furuta_cosim.identify.estimate import estimated_noise
 
-        noise = estimated_noise(experiment, target, {**experiment.parameters, **(values or {})})
+        at = {**experiment.parameters, **(values or {})}
+        noise = estimated_noise(experiment, target, at)
+        draw = int((values or {}).get(f"{experiment.alias or experiment.name}.{NOISE_DRAW}", 0))
+        if draw:   # the smoother's estimate moved as its own error could (identify/reach.py)
+            from furuta_cosim.identify.estimate import noise_draw
+
+            moved = noise_draw(experiment, target, at, draw)
+            noise = (noise[0] + moved[0], noise[1] + moved[1])
     # a delay of m whole samples and a fraction f of one: over [t_k, t_k + f) the motor gets the
     # command of sample k - m - 1, over the rest of the sample that of k - m; before the window's
     # start, the command logged there (a window that cuts the log mid-run), else 0

@@ -357,7 +357,7 @@ def identify(spec_name: str | Path, output: str | Path, *, workers: int = 1, das
         verdict["notes"].append(
             "every interval is widened by the reach of the start state the logs give (each counted angle "
             "anywhere within half a count, each freed rate of a balancing log within what its smoother "
-            "knows): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
+            "knows, a balancing log's smoother within its own error): " + ", ".join(f"{n} +-{100 * r:.2g} %" for r, n in widest)
             + " (docs: Your own rig, What the data can tell)")
     for e in result.spec.experiments:
         if e.loop is not None and e.loop.lead_in is not None:   # a window cut from a run
@@ -408,7 +408,7 @@ def _with_profiles(document: dict, found: dict) -> None:
     """fit.json with each profiled parameter's profile, its likelihood-ratio interval and its
     verdict; a parameter that is not identifiable in the profile's sense is marked so
     (``identifiable: false``: tune --from-fit holds it at its value). The interval is the
-    profile's widened by the counted start angles' reach (identify/reach.py); one that then
+    profile's widened by its reach (identify/reach.py); one that then
     reaches 0 or a bound is not identifiable."""
     from furuta_cosim.identify.reach import widened
 
@@ -423,16 +423,17 @@ def _with_profiles(document: dict, found: dict) -> None:
         lo, hi = entry["interval_profile"]
         if verdict == "identifiable" and (lo <= max(0.0, entry["bounds"][0]) or hi >= entry["bounds"][1]):
             verdict = "practically not identifiable"
-            why = (f"its profile interval widened by the start angles' reach (+-{entry['reach']:.3g}) "
+            why = (f"its profile interval widened by its reach (+-{entry['reach']:.3g}) "
                    f"is [{lo:.4g}, {hi:.4g}], reaching 0 or a bound")
         entry["verdict"] = verdict + (f": {why}" if why else "")
         entry["identifiable"] = verdict == "identifiable"
-        entry["rests_on"] = "its profile" + (", widened by the start angles' reach" if entry.get("reach") else "")
+        entry["rests_on"] = "its profile" + (", widened by its reach" if entry.get("reach") else "")
     document["interval_profile_method"] = (
         "profile likelihood: the cost with the parameter held and every other unknown fitted again; "
         "95 % where it rises less than chi2(1, 0.95) / 2 times the residual variance, scaled by the "
         "parameter's sandwich-to-textbook variance ratio (Chandler and Bate 2007)"
-        + ("; widened on each side by the counted start angles' reach" if document.get("reach") else ""))
+        + ("; widened on each side by each value's reach (the start state the logs give, a balancing log's "
+           "smoother: identify/reach.py)" if document.get("reach") else ""))
 
 
 def _with_bootstrap(document: dict, resampled: dict) -> None:

@@ -135,7 +135,7 @@ def load_fit(path: str | Path) -> Fit:
             problems.append(f"{key}.reach: expected a finite number >= 0 or none")
             continue
         values.append(float(numbers[0]))
-        # the counted start angles' reach widens the spread as it widens the 95 % interval
+        # the reach (identify/reach.py) widens the spread as it widens the 95 % interval
         errors.append(float(numbers[1]) + float(reach) / Z95)
         bounds.append((float(pair[0]), float(pair[1])))
     matrix = correlation["matrix"]

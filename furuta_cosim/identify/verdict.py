@@ -240,7 +240,7 @@ def read_intervals(document: dict, ranges: dict, why: str = "not profiled") -> N
             wrong.append(f"reaches above {high:g}")
         p["identifiable"] = not wrong
         p["rests_on"] = f"its sandwich interval ({reason})" + (
-            ", widened by the start angles' reach" if p.get("reach") else "")
+            ", widened by its reach" if p.get("reach") else "")
         p["verdict"] = (f"identifiable by its sandwich interval ({reason})" if not wrong else
                         f"practically not identifiable: its sandwich interval [{lo:.4g}, {hi:.4g}] "
                         f"{' and '.join(wrong)} ({reason})")
