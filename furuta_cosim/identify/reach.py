@@ -124,7 +124,7 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
                        "refitted, to first order, propagated to 95 % and added")
         drawn = np.zeros(len(seen))
         if estimated:
-            drawn = _drawn(runner, freed, list(items) + extra, base, J, seen, estimated)
+            drawn = _drawn(runner, freed, list(items) + extra, base, J, estimated)
             how.append(f"the smoother's estimate of the angles moved by {DRAWS} draws of its own error, the rest "
                        "refitted, to first order: the mean move and the 95 % spread, added")
         simulations = runner.count
@@ -144,7 +144,7 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
 DRAWS = 8   # draws of a balancing log's smoother error (identify/estimate.py noise_draw)
 
 
-def _drawn(runner, experiments, items: list, base: np.ndarray, J: np.ndarray, seen, estimated) -> np.ndarray:
+def _drawn(runner, experiments, items: list, base: np.ndarray, J: np.ndarray, estimated) -> np.ndarray:
     """The move (scaled) of each seen unknown that the smoother's own error carries: the angles
     its estimate gives each balancing log's controller moved by DRAWS draws of that error
     (estimate.noise_draw), the seen unknowns refitted to first order (a Gauss-Newton step on the
