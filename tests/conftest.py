@@ -20,7 +20,11 @@ from helpers import FOREIGN, build_foreign  # noqa: E402 - the fixtures build fo
 # workers it waited for) are: a loaded machine stretches the first and not the second, and a
 # test on two workers doubles the second and not the first, so neither alone fails a run.
 SLOW_LIMIT = 5.0
+# one at 3 s on an idle machine took 5.5 s in a CI run: those past this share of the limit are
+# listed (not failed) so that they are marked before a loaded run fails on them
+NEAR_LIMIT = 0.6 * SLOW_LIMIT
 _UNMARKED: list[tuple[str, float, float]] = []
+_NEAR: list[tuple[str, float, float]] = []
 
 
 def _cpu_seconds() -> float:
@@ -41,14 +45,23 @@ def pytest_runtest_logreport(report):
     cpu = dict(report.user_properties).get("cpu_seconds", report.duration)
     if min(report.duration, cpu) > SLOW_LIMIT:
         _UNMARKED.append((report.nodeid, report.duration, cpu))
+    elif min(report.duration, cpu) > NEAR_LIMIT:
+        _NEAR.append((report.nodeid, report.duration, cpu))
+
+
+def _listed(calls) -> str:
+    return "\n".join(f"  {nodeid}: {wall:.1f} s, {cpu:.1f} s of CPU" for nodeid, wall, cpu in calls)
 
 
 def pytest_sessionfinish(session, exitstatus):
     shutil.rmtree(os.environ["FURUTA_COSIM_CACHE"], ignore_errors=True)
-    if _UNMARKED and os.environ.get("FURUTA_COSIM_CHECK_SLOW") == "1":
-        lines = "\n".join(f"  {nodeid}: {wall:.1f} s, {cpu:.1f} s of CPU"
-                          for nodeid, wall, cpu in _UNMARKED)
-        print(f"\n{len(_UNMARKED)} test(s) over {SLOW_LIMIT:g} s not marked slow:\n{lines}")
+    if os.environ.get("FURUTA_COSIM_CHECK_SLOW") != "1":
+        return
+    if _NEAR:
+        print(f"\n{len(_NEAR)} test(s) over {NEAR_LIMIT:g} s not marked slow (not failed; mark "
+              f"them before load takes them past {SLOW_LIMIT:g} s):\n{_listed(_NEAR)}")
+    if _UNMARKED:
+        print(f"\n{len(_UNMARKED)} test(s) over {SLOW_LIMIT:g} s not marked slow:\n{_listed(_UNMARKED)}")
         session.exitstatus = 1
 
 

@@ -139,6 +139,7 @@ def test_the_initial_design_is_a_seeded_latin_hypercube_inside_the_bounds():
     assert not np.array_equal(points, latin_hypercube(8, bounds, 6))
 
 
+@pytest.mark.slow
 def test_each_point_of_a_batch_is_sent_before_the_next_is_computed(tmp_path, monkeypatch):
     events = []
 
@@ -177,6 +178,7 @@ def test_each_point_of_a_batch_is_sent_before_the_next_is_computed(tmp_path, mon
         ["fit", "point", "submit", "point", "submit", "gather"] * 2
 
 
+@pytest.mark.slow
 def test_the_optimizer_runs_on_one_blas_thread_serial_too(tmp_path, monkeypatch):
     from threadpoolctl import threadpool_info, threadpool_limits
 

@@ -171,6 +171,7 @@ def test_a_delay_s_bounds_are_checked(tmp_path, bounds, expected):
         load_experiment(experiment)
 
 
+@pytest.mark.slow
 def test_a_jittered_interleaved_log_fits_as_the_uniform_one(tmp_path):
     from furuta_cosim.identify.run import identify
 

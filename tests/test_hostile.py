@@ -681,6 +681,7 @@ def test_python_dash_m_and_a_closed_pipe(tmp_path):
         assert process.wait() == 141 and err == b"", err
 
 
+@pytest.mark.slow
 def test_resuming_a_finished_run_keeps_its_times(stopped_run, tmp_path, capsys):
     run = _copy_run(stopped_run, tmp_path)
     before = json.loads((run / "summary.json").read_text())

@@ -486,6 +486,7 @@ def test_a_cell_is_an_ascii_decimal_number(tmp_path, capsys, cell):
     assert "log.csv: line 3, column v: not a number" in line and "ASCII decimal" in line, line
 
 
+@pytest.mark.slow
 def test_a_million_row_log_is_read_in_bounded_memory(tmp_path):
     """The reader once held every row as Python floats: 629 MB to replay 10^6 rows."""
     n = 1_000_000

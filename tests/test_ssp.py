@@ -133,6 +133,7 @@ def test_every_exported_file_is_valid_against_the_standards_schemas(tmp_path):
     assert (tmp_path / "loop.ssp").read_bytes() == (tmp_path / "again.ssp").read_bytes()
 
 
+@pytest.mark.slow
 def test_a_parameter_set_read_back_is_the_plant_it_came_from(tmp_path, capsys):
     """simulate on an SSP's set is simulate on that plant file, sample for sample; simulate
     SSP runs the scenario and controller the archive carries."""

@@ -144,6 +144,7 @@ def test_scalarizations_are_a_function_of_the_seed_and_batch():
 
 
 # -- a run -----------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_tradeoff_run_writes_its_front(tmp_path, capsys):
     path = spec_file(tmp_path)
     code, out, err = run_cli(capsys, "tune", str(path), "-o", str(tmp_path / "run"), "--workers", "1")
@@ -317,6 +318,7 @@ def test_fronts_of_two_runs_on_one_figure(tmp_path, capsys):
     assert code == 2 and "no front.json" in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_a_three_criteria_tradeoff_ends_with_its_summary_and_figure(tmp_path, capsys):
     """ParEGO, the default for three criteria: the run gets its summary and front figure
     whatever the number of feasible and front points (odd counts once broke a reshape)."""

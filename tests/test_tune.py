@@ -22,6 +22,7 @@ def history(folder):
     return [json.loads(line) for line in (folder / "history.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_paper_spectral_finds_a_stable_controller(tmp_path, capsys):
     code, out, err = run_cli(capsys, "tune", "paper-spectral", "--n-calls", "15", "-o",
                              str(tmp_path / "run"), "--json")
@@ -74,6 +75,7 @@ def test_random_search_writes_the_same_history_format(tmp_path):
                and isinstance(r["feasible"], bool) and isinstance(r["objective"], float) for r in records)
 
 
+@pytest.mark.slow
 def test_a_run_directory_is_never_overwritten(tmp_path, capsys):
     tune(load_spec("paper-spectral"), tmp_path / "run", n_calls=3)
     code, _, err = run_cli(capsys, "tune", "paper-spectral", "-o", str(tmp_path / "run"))
@@ -99,6 +101,7 @@ baselines: [lqr-paper]
 """
 
 
+@pytest.mark.slow
 def test_a_scenarios_objective_over_plant_variants(tmp_path):
     path = tmp_path / "effort.yaml"
     path.write_text(SCENARIOS_SPEC)
@@ -155,6 +158,7 @@ def test_a_killed_run_resumes_to_exactly_n_calls(tmp_path):
     assert strip(records) == strip(history(whole))
 
 
+@pytest.mark.slow
 def test_a_worker_that_raises_or_dies_fails_only_its_evaluation(tmp_path, monkeypatch):
     import os
 
@@ -330,6 +334,7 @@ def test_the_history_depends_on_neither_the_workers_nor_an_interruption(tmp_path
         assert strip(history(folder)) == whole, cut
 
 
+@pytest.mark.slow
 def test_a_resumed_history_from_another_optimizer_is_refused(tmp_path):
     """--resume proposes again the design and the batch it continues: a history that is not
     this run's there is refused, and nothing is changed."""
