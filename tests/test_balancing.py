@@ -202,6 +202,42 @@ def test_the_smoother_sees_the_true_angles_better_than_the_counts(logs):
     assert np.all(raw > 0.25) and np.all(smoothed < 0.5 * raw), (raw, smoothed)   # measured 0.3 vs 0.06
 
 
+def _pass_by_sample(Ad, C, gains, smoothers, start, y, known):
+    """The Kalman filter and the smoother's gains back, one sample at a time: the definition."""
+    N, n = len(y), Ad.shape[0]
+    predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
+    x = start
+    for k in range(N):
+        predicted[k] = x
+        filtered[k] = x + gains[min(k, len(gains) - 1)] @ (y[k] - C @ x)
+        x = Ad @ filtered[k] + known[k]
+    smoothed = filtered.copy()
+    for k in range(N - 2, -1, -1):
+        smoothed[k] = filtered[k] + smoothers[min(k, len(smoothers) - 1)] @ (smoothed[k + 1] - predicted[k + 1])
+    return smoothed
+
+
+@pytest.mark.parametrize("diffuse", [True, False])
+@pytest.mark.parametrize("samples", [1, 2, 31, 33, 700])
+def test_the_smoother_s_blocked_recursions_are_the_sample_by_sample_pass(logs, diffuse, samples):
+    """On the plant's own linearization and a log's readings, the smoother in blocks gives what
+    it gives one sample at a time (to rounding), from a diffuse start (gains that settle over
+    many samples) or a settled one, for logs shorter and longer than a block."""
+    from furuta_cosim.identify.estimate import _gains, _pass, _setup
+    from furuta_cosim.identify.replay import target_for
+
+    m = _setup(load_experiment(logs["lqr"]), target_for(plant="qube-servo-3"), {})
+    y, n = m["y"][:samples], m["Ad"].shape[0]
+    gains, smoothers = _gains(m["Ad"], m["C"], m["Q"], m["R"], m["steady"], samples, diffuse=diffuse)
+    known = np.random.default_rng(0).standard_normal((samples, n)) * 1e-3
+    start = np.linalg.lstsq(m["C"], y[0], rcond=None)[0]
+    fast = _pass(m["Ad"], m["C"], gains, smoothers, start, y, known)
+    slow = _pass_by_sample(m["Ad"], m["C"], gains, smoothers, start, y, known)
+    scale = np.max(np.abs(slow), axis=0) + 1e-12
+    assert fast.shape == slow.shape
+    assert np.max(np.abs(fast - slow) / scale) < 1e-9
+
+
 def test_the_smoother_s_own_error_is_drawn_from_its_noise_model(logs):
     """A draw of the smoother's error (what it makes of reading noise alone: the reach of a
     balancing fit adds its effect) is reproducible by its seed, another seed another draw, and

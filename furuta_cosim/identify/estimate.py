@@ -41,6 +41,7 @@ INPUT_NOISE = 3.0
 # out 5.5 % high, 1.7 % from its stated rest (tests/test_balancing.py)
 DIFFUSE = 1e4
 SETTLED = 1e-9
+CHUNK = 32          # samples per block of the smoother's constant-gain recursions
 # a log whose pendulum leaves this band around upright (rad) is not a balancing log: the
 # linear model is not the plant there, and the loop closes on the counted angles instead
 UPRIGHT = 0.5
@@ -250,19 +251,69 @@ def _smoothed(experiment, target, values: Mapping[str, float],
 
 def _pass(Ad, C, gains, smoothers, start: np.ndarray, y: np.ndarray, known: np.ndarray) -> np.ndarray:
     """The smoothed state at every sample of the readings ``y``: the Kalman filter forward from
-    ``start`` (``known``: what the inputs add over each sample), the smoother's gains back."""
+    ``start`` (``known``: what the inputs add over each sample), the smoother's gains back. The
+    samples with gains of their own (a diffuse start settling) go one by one; from where the
+    gains hold, each direction is a constant linear recursion (:func:`_recurrence`)."""
     N, n = len(y), Ad.shape[0]
     predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
     x = start
-    for k in range(N):
+    head = min(len(gains) - 1, N)          # the samples before the gains hold
+    for k in range(head):
         predicted[k] = x
-        filtered[k] = x + gains[min(k, len(gains) - 1)] @ (y[k] - C @ x)
+        filtered[k] = x + gains[k] @ (y[k] - C @ x)
         if k + 1 < N:
             x = Ad @ filtered[k] + known[k]
+    if head < N:
+        # filtered[k + 1] = (I - G C) (Ad filtered[k] + known[k]) + G y[k + 1]
+        G = gains[-1]
+        M = np.eye(n) - G @ C
+        predicted[head] = x
+        filtered[head] = M @ x + G @ y[head]
+        drive = known[head:N - 1] @ M.T + y[head + 1:N] @ G.T
+        filtered[head:] = _recurrence(M @ Ad, filtered[head], drive)
+        predicted[head + 1:] = filtered[head:N - 1] @ Ad.T + known[head:N - 1]
     smoothed = filtered.copy()
-    for k in range(N - 2, -1, -1):
-        smoothed[k] = filtered[k] + smoothers[min(k, len(smoothers) - 1)] @ (smoothed[k + 1] - predicted[k + 1])
+    low = max(len(smoothers) - 1, 0)       # from here up, the smoother's gain holds
+    if low <= N - 2:
+        # smoothed[k] = S smoothed[k + 1] + (filtered[k] - S predicted[k + 1]), run backward
+        S = smoothers[-1]
+        drive = filtered[low:N - 1] - predicted[low + 1:N] @ S.T
+        smoothed[low:] = _recurrence(S, filtered[N - 1], drive[::-1])[::-1]
+    for k in range(min(low, N - 1) - 1, -1, -1):
+        smoothed[k] = filtered[k] + smoothers[k] @ (smoothed[k + 1] - predicted[k + 1])
     return smoothed
+
+
+def _recurrence(F: np.ndarray, first: np.ndarray, drive: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
+    """``x`` with ``x[0] = first`` and ``x[k + 1] = F x[k] + drive[k]`` (len(drive) + 1 rows), in
+    chunks of ``chunk`` samples: within a chunk, what the drive adds is one product with the
+    block-Toeplitz matrix of F's powers for all chunks at once, and only the chunks' first
+    states go one after another (a sample-by-sample loop in Python was most of a balancing
+    fit's time)."""
+    T, n = drive.shape
+    out = np.empty((T + 1, n))
+    out[0] = first
+    if T == 0:
+        return out
+    powers = [np.eye(n)]
+    for _ in range(chunk):
+        powers.append(F @ powers[-1])
+    powers = np.stack(powers)                              # F^0 .. F^chunk
+    lag = np.subtract.outer(np.arange(chunk), np.arange(chunk))
+    blocks = np.where((lag >= 0)[:, :, None, None], powers[np.maximum(lag, 0)], 0.0)
+    toeplitz = blocks.transpose(0, 2, 1, 3).reshape(chunk * n, chunk * n)   # row i: x[s + i + 1]
+    chunks = -(-T // chunk)
+    padded = np.zeros((chunks * chunk, n))
+    padded[:T] = drive
+    added = (padded.reshape(chunks, chunk * n) @ toeplitz.T).reshape(chunks, chunk, n)
+    starts = np.empty((chunks, n))                          # each chunk's first state, in turn
+    x = first
+    for c in range(chunks):
+        starts[c] = x
+        x = powers[chunk] @ x + added[c, -1]
+    carried = powers[1:].reshape(chunk * n, n)              # x[s] -> x[s + 1 .. s + chunk]
+    out[1:] = ((starts @ carried.T).reshape(chunks * chunk, n) + added.reshape(chunks * chunk, n))[:T]
+    return out
 
 
 def noise_draw(experiment, target, values: Mapping[str, float], seed: int) -> tuple[np.ndarray, np.ndarray]:
