@@ -4,6 +4,7 @@ and every fit judged before its plant file is written (identify/verdict.py)."""
 
 import math
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -202,27 +203,17 @@ def test_the_smoother_sees_the_true_angles_better_than_the_counts(logs):
     assert np.all(raw > 0.25) and np.all(smoothed < 0.5 * raw), (raw, smoothed)   # measured 0.3 vs 0.06
 
 
-def _pass_by_sample(Ad, C, gains, smoothers, start, y, known):
-    """The Kalman filter and the smoother's gains back, one sample at a time: the definition."""
-    N, n = len(y), Ad.shape[0]
-    predicted, filtered = np.zeros((N, n)), np.zeros((N, n))
-    x = start
-    for k in range(N):
-        predicted[k] = x
-        filtered[k] = x + gains[min(k, len(gains) - 1)] @ (y[k] - C @ x)
-        x = Ad @ filtered[k] + known[k]
-    smoothed = filtered.copy()
-    for k in range(N - 2, -1, -1):
-        smoothed[k] = filtered[k] + smoothers[min(k, len(smoothers) - 1)] @ (smoothed[k + 1] - predicted[k + 1])
-    return smoothed
-
-
 @pytest.mark.parametrize("diffuse", [True, False])
-@pytest.mark.parametrize("samples", [1, 2, 31, 33, 700])
+@pytest.mark.parametrize("samples", [1, 2, 5, 50, 700, 3000])
 def test_the_smoother_s_blocked_recursions_are_the_sample_by_sample_pass(logs, diffuse, samples):
     """On the plant's own linearization and a log's readings, the smoother in blocks gives what
     it gives one sample at a time (to rounding), from a diffuse start (gains that settle over
-    many samples) or a settled one, for logs shorter and longer than a block."""
+    over hundreds of samples: 367 here) or a settled one, on logs of a few samples to thousands."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+    try:
+        from bench_smoother import pass_by_sample   # the pass as defined, one sample at a time
+    finally:
+        sys.path.pop(0)
     from furuta_cosim.identify.estimate import _gains, _pass, _setup
     from furuta_cosim.identify.replay import target_for
 
@@ -232,7 +223,7 @@ def test_the_smoother_s_blocked_recursions_are_the_sample_by_sample_pass(logs, d
     known = np.random.default_rng(0).standard_normal((samples, n)) * 1e-3
     start = np.linalg.lstsq(m["C"], y[0], rcond=None)[0]
     fast = _pass(m["Ad"], m["C"], gains, smoothers, start, y, known)
-    slow = _pass_by_sample(m["Ad"], m["C"], gains, smoothers, start, y, known)
+    slow = pass_by_sample(m["Ad"], m["C"], gains, smoothers, start, y, known)
     scale = np.max(np.abs(slow), axis=0) + 1e-12
     assert fast.shape == slow.shape
     assert np.max(np.abs(fast - slow) / scale) < 1e-9

@@ -41,7 +41,6 @@ INPUT_NOISE = 3.0
 # out 5.5 % high, 1.7 % from its stated rest (tests/test_balancing.py)
 DIFFUSE = 1e4
 SETTLED = 1e-9
-CHUNK = 32          # samples per block of the smoother's constant-gain recursions
 # a log whose pendulum leaves this band around upright (rad) is not a balancing log: the
 # linear model is not the plant there, and the loop closes on the counted angles instead
 UPRIGHT = 0.5
@@ -284,34 +283,36 @@ def _pass(Ad, C, gains, smoothers, start: np.ndarray, y: np.ndarray, known: np.n
     return smoothed
 
 
-def _recurrence(F: np.ndarray, first: np.ndarray, drive: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
+def _recurrence(F: np.ndarray, first: np.ndarray, drive: np.ndarray) -> np.ndarray:
     """``x`` with ``x[0] = first`` and ``x[k + 1] = F x[k] + drive[k]`` (len(drive) + 1 rows), in
-    chunks of ``chunk`` samples: within a chunk, what the drive adds is one product with the
-    block-Toeplitz matrix of F's powers for all chunks at once, and only the chunks' first
-    states go one after another (a sample-by-sample loop in Python was most of a balancing
-    fit's time)."""
+    chunks of about sqrt(len(drive)) samples: what the drive adds within each chunk, all chunks
+    stepped together, then each chunk's first state in turn, then the rest in one product. Each
+    product is small (no BLAS threads to contend for); a sample-by-sample loop in Python was
+    most of a balancing fit's time."""
     T, n = drive.shape
     out = np.empty((T + 1, n))
     out[0] = first
     if T == 0:
         return out
-    powers = [np.eye(n)]
-    for _ in range(chunk):
-        powers.append(F @ powers[-1])
-    powers = np.stack(powers)                              # F^0 .. F^chunk
-    lag = np.subtract.outer(np.arange(chunk), np.arange(chunk))
-    blocks = np.where((lag >= 0)[:, :, None, None], powers[np.maximum(lag, 0)], 0.0)
-    toeplitz = blocks.transpose(0, 2, 1, 3).reshape(chunk * n, chunk * n)   # row i: x[s + i + 1]
+    chunk = max(1, math.isqrt(T))
     chunks = -(-T // chunk)
     padded = np.zeros((chunks * chunk, n))
     padded[:T] = drive
-    added = (padded.reshape(chunks, chunk * n) @ toeplitz.T).reshape(chunks, chunk, n)
+    steps = padded.reshape(chunks, chunk, n)
+    added = np.empty((chunks, chunk, n))                    # from a zero state at each chunk's start
+    z = np.zeros((chunks, n))
+    for i in range(chunk):
+        z = z @ F.T + steps[:, i]
+        added[:, i] = z
+    powers = [F]
+    for _ in range(chunk - 1):
+        powers.append(F @ powers[-1])
     starts = np.empty((chunks, n))                          # each chunk's first state, in turn
     x = first
     for c in range(chunks):
         starts[c] = x
-        x = powers[chunk] @ x + added[c, -1]
-    carried = powers[1:].reshape(chunk * n, n)              # x[s] -> x[s + 1 .. s + chunk]
+        x = powers[-1] @ x + added[c, -1]
+    carried = np.concatenate(powers)                        # x[s] -> x[s + 1 .. s + chunk]
     out[1:] = ((starts @ carried.T).reshape(chunks * chunk, n) + added.reshape(chunks * chunk, n))[:T]
     return out
 
