@@ -89,6 +89,7 @@ def test_scenarios_plant_sets_and_prepared_scenarios_pickle():
         compiled.runtime.control([0.0] * 5, 1.0)
 
 
+@pytest.mark.slow
 def test_a_process_pool_evaluates_as_in_process(paper_step):
     names = ["lqr-paper", "bo-paper"]
     with PlantSession.open(paper_step.fmu) as session:
