@@ -23,7 +23,7 @@ from dataclasses import replace
 
 from furuta_cosim.config import Frozen
 from furuta_cosim.fmu.plants import load_plant
-from furuta_cosim.identify.fit import fit
+from furuta_cosim.identify.fit import NotSeparable, fit
 from furuta_cosim.identify.replay import target_for
 from furuta_cosim.identify.spec import Parameter, load_identify_spec
 
@@ -51,7 +51,15 @@ def main() -> None:
           f"{'current A':>9s} {'sims':>5s} {'seconds':>7s}")
     for name, (variant, workers) in variants(spec).items():
         started = time.perf_counter()
-        document = fit(variant, target, workers=workers).document()
+        try:
+            document = fit(variant, target, workers=workers).document()
+        except NotSeparable as refusal:
+            # what identify says at these start values before it fits; the fit itself is what
+            # this benchmark measures, so it is run as `identify --force` runs it
+            first = str(refusal).splitlines()[0].split(": free: ", 1)[-1]
+            print(f"{name:11s} refused before the fit at its start values ({first}); fitted with --force:")
+            started = time.perf_counter()
+            document = fit(variant, target, workers=workers, force=True).document()
         wall = time.perf_counter() - started
         swing, motor = document["experiments"]["free-swing"]["theta1"], document["experiments"]["motor-7V"]
         rows[name] = wall
