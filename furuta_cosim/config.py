@@ -32,9 +32,14 @@ class _DuplicateKey(yaml.YAMLError):
         self.key, self.first, self.again = key, first, again
 
 
+_BOOL = "tag:yaml.org,2002:bool"
+
+
 class _StrictLoader(_SAFE_LOADER):
     """The safe loader, refusing a key that appears twice in one mapping (PyYAML keeps the
-    last one silently)."""
+    last one silently). A plain key that YAML 1.1 reads as a boolean (``on``, ``off``,
+    ``yes``, ``no``) stays the word it is, as YAML 1.2 reads it: no key of a project file is a
+    boolean, and ``derivative: {on: error}`` means the word ``on``. Values keep 1.1's reading."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -42,6 +47,8 @@ class _StrictLoader(_SAFE_LOADER):
             for key_node, _ in node.value:
                 if key_node.tag == "tag:yaml.org,2002:merge":
                     continue
+                if key_node.tag == _BOOL and isinstance(key_node, yaml.ScalarNode) and not key_node.style:
+                    key_node.tag = "tag:yaml.org,2002:str"
                 key = self.construct_object(key_node, deep=True)
                 line = key_node.start_mark.line + 1
                 try:

@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from helpers import PAGES, ROOT, python_blocks
+from helpers import PAGES, ROOT, documentation, python_blocks
 
 API = re.findall(r"^::: (\S+)$", (PAGES / "api.md").read_text(), re.M)
 
@@ -160,3 +160,30 @@ def test_every_page_reads_on_the_repository_host_as_on_the_site():
             # commit hashes, issue numbers and staleness markers live on the Performance page
             assert "Stale" not in text and not re.search(r"\bissue \d+", text, re.I), page.name
             assert not re.search(r"commit `[0-9a-f]{7,}`", text), page.name
+
+
+def _keys(value):
+    """Every mapping key in a loaded YAML document, at any depth."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield key
+            yield from _keys(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from _keys(item)
+
+
+def test_every_yaml_block_of_the_docs_loads_with_its_keys_as_written(tmp_path):
+    # YAML 1.1 reads a plain `on`, `off`, `yes` or `no` as a boolean; as a key of ours it is the
+    # word (the foreign-log law's `derivative: {on: error}`)
+    from furuta_cosim.config import load_yaml
+
+    blocks = [(where, block) for where, text in documentation().items()
+              for block in re.findall(r"```yaml\n(.*?)```", text, re.S)]
+    assert len(blocks) >= 20
+    for k, (where, block) in enumerate(blocks):
+        path = tmp_path / f"block-{k}.yaml"
+        path.write_text(block)
+        data = load_yaml(path)
+        assert isinstance(data, dict), where
+        assert all(isinstance(key, str) for key in _keys(data)), (where, [k for k in _keys(data) if not isinstance(k, str)])
