@@ -302,7 +302,11 @@ def test_multiple_shooting_fits_a_log_whose_controller_is_not_known(logs, tmp_pa
     (lambda d: d["loop"].update(delay=1.0), "loop.delay", "more than 10 samples"),
     (lambda d: d["loop"].update(feedforward="nope"), "loop.feedforward", "not one of columns"),
     (lambda d: d.update(segments=0.001), "segments", "shorter than 3 samples"),
-    (lambda d: d["inputs"]["V"].update(delay=-1), "inputs.V.delay", ">= 0"),
+    (lambda d: d["inputs"]["V"].update(delay=-1), "inputs.V.delay", "is loop.delay"),
+    (lambda d: d["inputs"]["V"].update(delay=0.002), "inputs.V.delay", "is loop.delay"),
+    (lambda d: d["loop"].update(delay={"free": [0.0, 0.5]}), "loop.delay.free", "more than 10 samples"),
+    (lambda d: d["loop"].update(delay={"free": [0.01, 0.002]}), "loop.delay.free", "0 <= lo < hi"),
+    (lambda d: d["loop"].update(delay={"fixed": 0.01}), "loop.delay.fixed", "unknown key (expected one of: free)"),
 ])
 def test_a_loop_that_cannot_be_closed_is_refused_with_its_key(logs, tmp_path, change, key, words):
     with pytest.raises(ConfigError) as caught:

@@ -5,6 +5,7 @@ delay, as the experiment file's `loop:` names them; a bad `loop:` is one line.""
 import json
 import math
 
+import numpy as np
 import pytest
 import yaml
 
@@ -183,3 +184,39 @@ def test_a_recorded_plant_that_is_a_path_is_refused(run, tmp_path, capsys):
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     line = one_line(capsys, "replay", str(path))
     assert "rig.plant: '../../elsewhere/plant.yaml': expected a plant file's name" in line and "--plant" in line
+
+
+def test_a_late_run_replays_each_command_when_the_board_applied_it(tmp_path):
+    """Samples up to 3 ms late on the virtual board's simulated clock: a late sample's successor
+    can be read at the same instant (the log's `late` makes two read times equal), which the log
+    check takes; the replay switches the motor's voltage exactly where the board did (its own
+    record, board.csv), and closes the loop on the same plant well within the tolerance."""
+    from furuta_cosim.cli import main
+    from furuta_cosim.identify.experiment import load_experiment
+    from furuta_cosim.identify.replay import closed_loop, open_session, target_for
+
+    out = tmp_path / "late"
+    assert main(["rig", "run", "swingup-qube", "--board", "virtual:fast,late=0.003", "--duration", "2",
+                 "--seed", "3", "-o", str(out)]) == 0
+    experiment = load_experiment(out / "experiment.yaml")
+    read = experiment.read_at
+    assert np.any(np.abs(np.diff(read)) < 1e-9) and np.all(np.diff(read) > -1e-9)
+    # the command of each sample at the motor from its write plus the board's delay, the later
+    # of two written at once winning: the board's own record of the voltage it applied
+    arrive = np.maximum.accumulate(read + (0.0 if experiment.loop.compute is None else experiment.loop.compute) + experiment.loop.delay)
+    board = np.genfromtxt(out / "board.csv", delimiter=",", names=True)
+    step = float(np.diff(board["t"][:2])[0])
+    # the board's row at t is the step from t, its time 2 periods before the run's first sample
+    at = board["t"] - 2 * experiment.period
+    inside = (at > 0.01) & (at < experiment.t[-1] - 0.01)
+    j = np.searchsorted(arrive, at + 1e-9, side="right") - 1
+    expected = np.where(j >= 0, experiment.inputs["V"][np.maximum(j, 0)], 0.0)
+    assert step == pytest.approx(0.0005)
+    np.testing.assert_array_equal(expected[inside], board["V_applied"][inside])
+    target = target_for(plant="qube-servo-3")
+    with open_session(target) as session:
+        _, volts = closed_loop(session, target, experiment)
+    # the controller sees what it saw until the swing-up's first count the replay rounds
+    # otherwise: the commands agree to rounding over the first 0.3 s
+    first = int(0.3 / experiment.period)
+    np.testing.assert_allclose(volts[:first], experiment.inputs["V"][:first], rtol=0, atol=1e-9)

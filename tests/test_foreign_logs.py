@@ -50,6 +50,22 @@ def test_a_lab_s_pd_on_two_errors_rebuilds_its_logged_output_and_replays(pd):
     assert abs(found["theta1"]["period"]["error"]) < 0.02
 
 
+def test_the_docs_law_block_loads_as_written_and_rebuilds_the_lab_s_output(pd, tmp_path):
+    # the foreign-logs page's first block, as a user copies it (its `on:` key unquoted, read as
+    # the word: YAML 1.1 alone would make it a boolean), beside the synthetic lab's log
+    from helpers import page
+
+    block = re.findall(r"```yaml\n(.*?)```", page("foreign-logs.md"), re.S)[0]
+    assert "derivative: {on: error" in block
+    (tmp_path / "pd.csv").write_bytes((pd.parent / "pd.csv").read_bytes())
+    path = tmp_path / "documented.yaml"
+    path.write_text("data: pd.csv\n" + block)
+    experiment = load_experiment(path)
+    assert "on error" in experiment.loop.describe() or "error" in experiment.loop.describe()
+    # the page's gains are the lab's to 5 digits: the command agrees to well under 1 mV
+    np.testing.assert_allclose(rebuilt_command(experiment), experiment.inputs["V"], rtol=0, atol=1e-3)
+
+
 @pytest.mark.parametrize("change, expected", [
     (lambda d: d["loop"]["law"]["derivative"].update(method="bilinear"), r"line \d+: the law gives"),
     (lambda d: d["loop"]["law"].update(error="measurement - reference"), r"line 2: the law gives 3.6"),
@@ -194,3 +210,77 @@ def test_a_held_out_part_starts_the_law_where_the_fitted_part_left_it(pd):
     # before it, not from zero: its command rebuilds from its first sample
     for part in (fitted, held):
         np.testing.assert_allclose(rebuilt_command(part), part.inputs["V"], rtol=0, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def pd_late(tmp_path_factory):
+    # the lab's PD with its command 5 ms late inside the loop (2.5 samples), the delay fitted
+    return pd_log(tmp_path_factory.mktemp("pd-late"), seed=1, delay=0.005, free_delay=(0.0, 0.02))
+
+
+def test_a_delay_inside_the_loop_moves_the_closed_loop_replay(pd_late):
+    experiment = load_experiment(pd_late)
+    assert experiment.free_starts() == {"loop.delay": experiment.loop.free_delay}
+    assert experiment.loop.free_delay.bounds == (0.0, 0.02)
+    target = target_for(plant="qube-servo-3")
+    found = {}
+    with open_session(target) as session:
+        for delay in (0.0, 0.005, 0.01):
+            found[delay] = compare(experiment, simulate(session, target, experiment, {"pd.loop.delay": delay}))
+    # at the true delay the loop closed again (on counted angles) is within 2 quanta RMS on both
+    # angles; at none or twice it, several times further off
+    for name in ("theta0", "theta1"):
+        assert found[0.005][name]["rms"] < 2.0 * found[0.005][name]["quantum"], found[0.005][name]
+        assert found[0.0][name]["rms"] > 2.0 * found[0.005][name]["rms"], (name, found)
+        assert found[0.01][name]["rms"] > 4.0 * found[0.005][name]["rms"], (name, found)
+
+
+def test_a_loop_s_fitted_delay_replays_open_loop_parts_at_the_fit_s_value(pd_late):
+    # a closed-loop log replayed open loop on its logged command (a swing-up's way, and a
+    # segment's) carries the loop's free delay as the same unknown, loop.delay
+    from furuta_cosim.identify.split import delayed
+
+    experiment = load_experiment(pd_late)
+    opened = delayed(experiment)
+    assert opened.loop is None and list(opened.free_starts()) == ["loop.delay"]
+    logged = experiment.inputs["V"]
+    np.testing.assert_allclose(opened.input_at("V", {"pd.loop.delay": 0.004})[2:], logged[:-2], rtol=0, atol=1e-12)
+    half = opened.input_at("V", {"pd.loop.delay": 0.005})
+    np.testing.assert_allclose(half[3:], 0.5 * (logged[:-3] + logged[1:-2]), rtol=0, atol=1e-12)
+
+
+def test_a_validation_log_shares_the_fitted_logs_delay(tmp_path):
+    from furuta_cosim.identify.fit import shared_values, with_shared
+
+    fitted = load_experiment(chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=4, name="a", duration=0.5))
+    other = load_experiment(chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=5, name="b", duration=0.5))
+    stated = load_experiment(chirp_log(tmp_path, delay=0.012, seed=6, name="c", duration=0.5))
+    shares = shared_values([fitted], [fitted, other, stated])
+    assert shares == {"b.V.delay": ["a.V.delay"]}   # a stated delay stays as stated
+    assert with_shared({"a.V.delay": 0.0121, "R_a": 7.5}, shares)["b.V.delay"] == 0.0121
+
+
+@pytest.mark.slow
+def test_a_held_out_chirp_is_scored_at_the_fitted_delay_and_replay_uses_it(tmp_path, capsys):
+    fitted = chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=4, name="a", duration=3.0)
+    held = chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=5, name="b", duration=3.0)
+    spec = _spec(tmp_path, fitted, {"R_a": (9.0, 1.0, 30.0)}, validation=f"[{held.name}]")
+    code, out, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"), "--no-profiles")
+    assert code == 0, (out, err)
+    document = json.loads((tmp_path / "fit" / "fit.json").read_text())
+    delay = document["parameters"]["a.V.delay"]["value"]
+    assert abs(delay - 0.012) < 0.001
+    assert document["shared"] == {"b.V.delay": {"value": delay, "from": ["a.V.delay"]}}
+    # scored at 12 ms, the held-out chirp is within 2 quanta on both angles (at its start, 0 ms,
+    # it was tens of quanta off)
+    for name in ("theta0", "theta1"):
+        scored = document["validation"]["b"][name]
+        assert scored["rms"] < 2.0 * scored["quantum"], scored
+        assert document["at_start"]["b"][name]["rms"] > 5.0 * scored["rms"]
+    # replay on the fitted plant takes the fitted delay, and says so
+    code, out, err = run_cli(capsys, "replay", str(held), "--plant", str(tmp_path / "fit" / "plant.yaml"), "--json")
+    replayed = json.loads(out)
+    assert replayed["values"] == {"b.V.delay": pytest.approx(delay, abs=1e-15)}
+    assert any("b: its V.delay at" in note and "fitted on a.V.delay" in note for note in replayed["notes"])
+    assert replayed["experiments"]["b"]["outputs"]["theta0"]["rms"] == pytest.approx(
+        document["validation"]["b"]["theta0"]["rms"], rel=1e-9)

@@ -97,3 +97,13 @@ def test_the_fit_on_dask_equals_the_fit_here(tmp_path):
     here = fit(spec, target, workers=1).document()
     there = fit(spec, target, workers=2, dask="local").document()
     assert there["parameters"] == here["parameters"] and there["simulations"] == here["simulations"]
+
+
+def test_two_logs_of_one_name_are_refused_naming_both(tmp_path, capsys):
+    from furuta_cosim.identify.foreign import chirp_log
+
+    first = chirp_log(tmp_path / "one", delay=0.0, seed=0, name="run", duration=0.2)
+    second = chirp_log(tmp_path / "two", delay=0.0, seed=1, name="run", duration=0.2)
+    code, out, err = run_cli(capsys, "replay", str(first), str(second), "--plant", "qube-servo-3")
+    assert code == 2, (out, err)
+    assert f"{second}: name: run is the name of {first} too" in err

@@ -120,7 +120,8 @@ def _setup(experiment, target, values: Mapping[str, float]):
     from scipy.linalg import solve_discrete_are
 
     loop = experiment.loop
-    Ad, B_before, B_now, C, whole, friction, states = _model(target, values, experiment.period, loop.delay)
+    Ad, B_before, B_now, C, whole, friction, states = _model(target, values, experiment.period,
+                                                                experiment.loop_delay(values))
     n = Ad.shape[0]
     names = ["theta0", "theta1"] + (["i"] if "i" in experiment.outputs and C.shape[0] > 2 else [])
     C = C[:len(names)]

@@ -76,10 +76,18 @@ class Free:
 @dataclass(frozen=True)
 class Delayed:
     """An input whose delay (s) the fit chooses within ``free.bounds``; ``before``: the
-    logged samples before the window (0 where the log has none), which a delay brings in."""
+    logged samples before the window (0 where the log has none), which a delay brings in.
+    ``key``: the fitted value's name within the experiment (``<input>.delay``; ``loop.delay``
+    for a closed loop's delay, replayed open loop on its logged command: identify/split.py);
+    ``timed``: for such a log that records when each sample was read and its command written,
+    (each command's write time, the commands, each sample's read time, over the whole window;
+    the index of this experiment's first sample in them): a command reaches the motor at its
+    write plus the delay, averaged over each sample."""
 
     free: Free
     before: np.ndarray
+    key: str = ""
+    timed: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -139,6 +147,8 @@ class Loop:
     linear: "LinearLaw | None" = None
     # the log's rows before a window that cuts it after its first row (None: the log's start)
     lead_in: LeadIn | None = None
+    # ``loop.delay: {free: [lo, hi]}``: the delay is fitted (``delay`` its start, the bounds' low end)
+    free_delay: Free | None = None
 
     def cut(self, keep: slice, lead_in: LeadIn | None = None) -> "Loop":
         """The loop over the samples ``keep`` of its log's window; ``lead_in``: the rows
@@ -230,8 +240,19 @@ class Experiment:
         name) and sensor biases (``<output>.bias``)."""
         found = {name: value for name, value in self.start.items() if isinstance(value, Free)}
         found.update({f"{name}.bias": m.bias for name, m in self.outputs.items() if m.bias is not None})
-        found.update({f"{name}.delay": d.free for name, d in self.delays.items()})
+        found.update({d.key or f"{name}.delay": d.free for name, d in self.delays.items()})
+        if self.loop is not None and self.loop.free_delay is not None:
+            found["loop.delay"] = self.loop.free_delay
         return found
+
+    def loop_delay(self, values: Mapping[str, float] | None = None) -> float:
+        """The loop's delay (s) from a sample to its command at the motor: its value in
+        ``values`` where the fit chooses it (``loop.delay: {free: ...}``), else as stated."""
+        if self.loop is None:
+            return 0.0
+        if self.loop.free_delay is None:
+            return self.loop.delay
+        return float((values or {}).get(f"{self.alias or self.name}.loop.delay", self.loop.delay))
 
     def corrected(self, simulated: Mapping[str, np.ndarray], values: Mapping[str, float]) -> dict:
         """The simulated outputs as the sensors would read them: plus each fitted bias."""
@@ -246,7 +267,13 @@ class Experiment:
         delayed = self.delays.get(name)
         if delayed is None:
             return value
-        seconds = (values or {}).get(f"{self.alias or self.name}.{name}.delay", delayed.free.start)
+        seconds = (values or {}).get(f"{self.alias or self.name}.{delayed.key or name + '.delay'}",
+                                     delayed.free.start)
+        if delayed.timed is not None:
+            from furuta_cosim.identify.split import held_means
+
+            writes, commands, read, first = delayed.timed
+            return held_means(np.maximum.accumulate(writes + seconds), commands, read)[first:first + self.samples]
         m = len(delayed.before)
         return shifted(np.concatenate([delayed.before, value]), seconds / self.period)[m:]
 
@@ -306,6 +333,13 @@ def load_experiment(path: str | Path) -> Experiment:
         check.done()
     period = _uniform(check, t, csv, table[LINE][keep])
     delays: dict = {}
+    if "loop" in top and isinstance(top.get("inputs"), dict):
+        for key, entry in top["inputs"].items():
+            if isinstance(entry, dict) and "delay" in entry:   # the replay closes the loop: never read
+                check.fail(f"inputs.{key}.delay", "the log has a loop, whose replay computes the command: "
+                                                   "its delay from a sample to the motor is loop.delay (s, or "
+                                                   "{free: [lo, hi]} to fit it)")
+        check.done()
     inputs = _inputs(check, top.get("inputs", {}), table, columns, keep, period, delays)
     outputs = _outputs(check, top["outputs"], table, columns, keep)
     # a stated start is checked against the data where the window cuts the log after its first
@@ -489,7 +523,9 @@ def _timing_column(check: Checker, entry: dict, key: str, table, columns, keep, 
     if not np.any(values > 1e-9):
         return None   # on time to the nanosecond (a simulated clock): the nominal times are exact
     if t is not None:
-        backwards = np.nonzero(np.diff(t + values) <= 0)[0]
+        # two readings at one instant are possible (a late sample's successor read at once, on a
+        # clock that counts no computing time); one before the one before it is not
+        backwards = np.nonzero(np.diff(t + values) < -1e-9 * period)[0]
         if len(backwards):
             k = int(backwards[0]) + 1
             check.fail("loop.late", f"{csv.name}: line {lines[k]}: read before the sample before it "
@@ -551,10 +587,15 @@ def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: f
     if voltage is not None:
         voltage = check.number(voltage, "loop.voltage", positive=True, maximum=1e4)
     counts = check.number(entry.get("counts", 2048), "loop.counts", minimum=4, maximum=2 ** 31, integer=True)
-    delay = check.number(entry.get("delay", 0.0), "loop.delay", minimum=0.0)
-    if delay is not None and period and delay > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
-        check.fail("loop.delay", f"{delay:g} s is more than {MAX_DELAY_SAMPLES} samples of the log "
-                                 f"({period:g} s each)")
+    free_delay = None
+    if isinstance(entry.get("delay"), dict):   # fitted inside the loop: {free: [lo, hi]}
+        free_delay = _free_delay(check, entry["delay"], "loop.delay", period)
+        delay = free_delay.start if free_delay is not None else 0.0
+    else:
+        delay = check.number(entry.get("delay", 0.0), "loop.delay", minimum=0.0)
+        if delay is not None and period and delay > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
+            check.fail("loop.delay", f"{delay:g} s is more than {MAX_DELAY_SAMPLES} samples of the log "
+                                     f"({period:g} s each)")
     check.done()
     linear = None
     if "law" in entry and is_linear(entry["law"]):
@@ -569,7 +610,25 @@ def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: f
     if law is None and controller is None and linear is None:
         return None
     return Loop(controller, digest, reference, float(rate), None if voltage is None else float(voltage),
-                float(counts), float(delay), law, feedforward, compute=compute, linear=linear)
+                float(counts), float(delay), law, feedforward, compute=compute, linear=linear,
+                free_delay=free_delay)
+
+
+def _free_delay(check: Checker, value, key: str, period: float) -> Free | None:
+    """A fitted delay, ``{free: [lo, hi]}`` (s), checked: 0 <= lo < hi, at most
+    MAX_DELAY_SAMPLES samples of the log; its start the low bound."""
+    entry = check.mapping(value, key, required=("free",))
+    bounds = check.vector(entry.get("free"), f"{key}.free", 2) if entry and "free" in entry else None
+    if bounds is None:
+        return None
+    if not 0.0 <= bounds[0] < bounds[1]:
+        check.fail(f"{key}.free", f"expected [lo, hi] with 0 <= lo < hi (s), got {bounds}")
+    elif period and bounds[1] > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
+        check.fail(f"{key}.free", f"{bounds[1]:g} s is more than {MAX_DELAY_SAMPLES} samples of "
+                                  f"the log ({period:g} s each)")
+    else:
+        return Free((float(bounds[0]), float(bounds[1])), float(bounds[0]))
+    return None
 
 
 def _conversion(spec: dict) -> tuple[str, float, float]:
@@ -860,19 +919,12 @@ def _inputs(check: Checker, value, table, columns, keep, period: float = 0.0,
             continue
         values, _, raw = signal
         if "delay" in raw and isinstance(raw["delay"], dict):   # fitted: {free: [lo, hi]}
-            entry = check.mapping(raw["delay"], f"{key}.delay", required=("free",))
-            bounds = check.vector(entry.get("free"), f"{key}.delay.free", 2) if entry and "free" in entry else None
-            if bounds is not None and not 0.0 <= bounds[0] < bounds[1]:
-                check.fail(f"{key}.delay.free", f"expected [lo, hi] with 0 <= lo < hi (s), got {bounds}")
-            elif bounds is not None and period and bounds[1] > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):
-                check.fail(f"{key}.delay.free", f"{bounds[1]:g} s is more than {MAX_DELAY_SAMPLES} samples of "
-                                                f"the log ({period:g} s each)")
-            elif bounds is not None and period:
-                m = int(math.ceil(bounds[1] / period)) + 1
+            free = _free_delay(check, raw["delay"], f"{key}.delay", period)
+            if free is not None and period:
+                m = int(math.ceil(free.bounds[1] / period)) + 1
                 first = keep.start or 0
                 before = np.concatenate([np.zeros(max(m - first, 0)), values[max(first - m, 0):first]])
-                delays[str(name)] = Delayed(Free((float(bounds[0]), float(bounds[1])), float(bounds[0])),
-                                            np.nan_to_num(before, nan=0.0, posinf=0.0, neginf=0.0))
+                delays[str(name)] = Delayed(free, np.nan_to_num(before, nan=0.0, posinf=0.0, neginf=0.0))
         elif "delay" in raw:  # the logged value reaches the plant this much later
             delay = check.number(raw["delay"], f"{key}.delay", minimum=0.0)
             if delay is not None and period and delay > MAX_DELAY_SAMPLES * period * (1 + UNIFORM_TOLERANCE):

@@ -98,6 +98,7 @@ class Runner:
     def __init__(self, target: Target, experiments: Sequence[Experiment], workers: int = 1,
                  dask: str | None = None):
         self.count = 0
+        self.experiments = list(experiments)   # what task k simulates: experiments[k]
         self._fmu = target.fmu
         self._pool = self._client = self._cluster = None
         if dask is not None:
@@ -178,7 +179,41 @@ def unknowns(spec: IdentifySpec, plant_values: Mapping[str, float]) -> list[Unkn
     return found
 
 
+def shared_values(fitted, others) -> dict[str, list[str]]:
+    """The delays a validation log shares with the fitted logs: for each log of ``others``
+    whose delay (an input's or its loop's) is free and is not one of the fit's unknowns (a log
+    held out whole, not a part of a fitted one), the fitted logs' unknowns of the same delay
+    (``{key: [fitted keys]}``): it is scored at their value (their mean), not at its start. A
+    delay is the rig's (its board, its transport), the same in every log of it; a sensor's zero
+    (a bias) or a start state is each log's own and is not shared."""
+    def delays(experiment):
+        owner = experiment.alias or experiment.name
+        return {suffix: f"{owner}.{suffix}" for suffix in experiment.free_starts() if suffix.endswith(".delay")}
+
+    fitted_keys: dict[str, list[str]] = {}
+    for experiment in fitted:
+        for suffix, key in delays(experiment).items():
+            if key not in fitted_keys.setdefault(suffix, []):
+                fitted_keys[suffix].append(key)
+    known = {key for keys in fitted_keys.values() for key in keys}
+    found = {}
+    for experiment in others:
+        for suffix, key in delays(experiment).items():
+            if key not in known and fitted_keys.get(suffix):
+                found[key] = list(fitted_keys[suffix])
+    return found
+
+
+def with_shared(values: Mapping[str, float], shares: Mapping[str, list[str]]) -> dict[str, float]:
+    """``values`` with each shared key (:func:`shared_values`) at its sources' mean."""
+    found = dict(values)
+    for key, sources in shares.items():
+        found[key] = float(np.mean([values[s] for s in sources]))
+    return found
+
+
 DELAY_GRID = 11   # a fitted delay's start: the best of at most this many whole-sample delays
+DELAY_RESCANS = 2   # after a fit, its delays scanned again at the fitted values at most this often
 
 
 def _delay_starts(runner, spec, items: list, log) -> list:
@@ -195,11 +230,7 @@ def _delay_starts(runner, spec, items: list, log) -> list:
     problem = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
     x = np.array([u.start / u.scale for u in items])
     for k in delays:
-        lo, hi = items[k].bounds
-        grid = np.arange(math.ceil(lo / period - 1e-9), math.floor(hi / period + 1e-9) + 1) * period
-        if not 0 < len(grid) <= DELAY_GRID:   # bounds within one sample, or logs of other periods
-            grid = np.linspace(lo, hi, DELAY_GRID if len(grid) else 2)
-        grid = np.clip(grid, lo, hi)
+        grid = _delay_grid(items[k], period)
         costs = []
         for value in grid:
             x[k] = value / items[k].scale
@@ -211,6 +242,44 @@ def _delay_starts(runner, spec, items: list, log) -> list:
         log(f"  {items[k].name}: starts at {best * 1000:g} ms, the best of {len(grid)} whole-sample delays "
             f"from {grid[0] * 1000:g} to {grid[-1] * 1000:g} ms at the start values")
     return items
+
+
+def _delay_grid(item, period: float) -> np.ndarray:
+    """The whole-sample delays (s) within a fitted delay's bounds, at most DELAY_GRID of them
+    (else that many evenly spread)."""
+    lo, hi = item.bounds
+    grid = np.arange(math.ceil(lo / period - 1e-9), math.floor(hi / period + 1e-9) + 1) * period
+    if not 0 < len(grid) <= DELAY_GRID:   # bounds within one sample, or logs of other periods
+        grid = np.linspace(lo, hi, DELAY_GRID if len(grid) else 2)
+    return np.clip(grid, lo, hi)
+
+
+def _delay_rescan(runner, spec, items: list, x: np.ndarray, log) -> np.ndarray | None:
+    """After a fit: each fitted delay's whole-sample scan again, the other unknowns at the
+    fit's values. A delay's well is narrow where the loop is near its margin (a lab's PD 7 ms
+    late: 6 to 7.5 ms), and the scan at the start values can pick the wrong one when a
+    parameter starts far off; the point of the scan that beats the fit (None if none does),
+    from which the fit runs again."""
+    delays = [k for k, u in enumerate(items) if u.name.endswith(".delay")]
+    if not delays:
+        return None
+    period = min(e.period for e in spec.experiments)
+    problem = Problem(runner, spec.experiments, items, None, math.inf, lambda *a: None)
+    r = problem.fun(x)
+    best_cost, best = 0.5 * float(r @ r), None
+    for k in delays:
+        for value in _delay_grid(items[k], period):
+            y = x.copy()
+            y[k] = value / items[k].scale
+            r = problem.fun(y)
+            cost = 0.5 * float(r @ r)
+            if cost < best_cost * (1.0 - 1e-6):
+                best_cost, best = cost, y
+    if best is not None:
+        moved = [f"{items[k].name} {best[k] * items[k].scale * 1000:g} ms" for k in delays if best[k] != x[k]]
+        log(f"  the whole-sample scan at the fitted values finds a lower cost at {', '.join(moved)}: "
+            "fitting again from there")
+    return best
 
 
 def _scale(start: float, bounds: tuple[float, float]) -> float:
@@ -228,9 +297,12 @@ class Problem:
         self.budget, self.progress = budget, progress
         self.best_cost = math.inf
         self._cache: dict = {}
+        # a validation log's free delay, at the fitted logs' value (shared_values)
+        self.shares = shared_values(experiments, getattr(runner, "experiments", ()))
 
     def values(self, x: np.ndarray) -> dict[str, float]:
-        return {u.name: float(v) * u.scale for u, v in zip(self.items, x)}
+        found = {u.name: float(v) * u.scale for u, v in zip(self.items, x)}
+        return with_shared(found, self.shares) if self.shares else found
 
     def _residuals(self, results, values) -> np.ndarray:
         parts = []
@@ -366,6 +438,7 @@ class FitResult:
     precheck: dict | None = None   # the Jacobian at the start values read (identify/precheck.py)
     reach: dict | None = None      # name -> what the counted start angles can move it by (identify/reach.py)
     reach_from: dict | None = None
+    shared: dict | None = None     # a validation log's delay -> {value, from: the fitted logs' keys}
 
     def document(self) -> dict:
         """fit.json: every value with its interval, the correlations, the residuals."""
@@ -415,6 +488,8 @@ class FitResult:
                 "stages": self.stages, "simulations": self.simulations,
                 "seconds": self.seconds, "cost": self.cost, "message": self.message,
                 "precheck": self.precheck,
+                # validation logs scored at a delay fitted on the fitted logs (fit.shared_values)
+                "shared": self.shared or {},
                 "starts": {"count": sum(len(o["starts"]) for o in self.optima or []) or 1,
                            "optima": [{"cost": o["cost"], "values": o["values"], "starts": o["starts"]}
                                       for o in self.optima or []]}}
@@ -550,15 +625,23 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
             budget = (int(state.get("budget_from", 0)) if resumed else runner.count) + spec.max_simulations
             if len(points) > 1:
                 log(f"  start {s + 1}/{len(points)}" + (" (the spec's)" if s == 0 else ""))
-            for k, horizon in enumerate(plan):
-                if k < first or message.startswith("stopped"):
-                    continue
-                x, message = _stage(runner, spec, items, x, lower, upper, k, plan, budget, record,
-                                    message, progress, log, f" of start {s + 1}" if len(points) > 1 else "")
-                state = {"start": s, "stage": k + 1, "x": [float(v) for v in x], "record": record,
-                         "message": message, "optima": state["optima"], "budget_from": budget - spec.max_simulations,
-                         "precheck": readings}
-                on_stage({**state, "simulations": runner.count})
+            for rescan in range(DELAY_RESCANS + 1):
+                for k, horizon in enumerate(plan):
+                    if k < first or message.startswith("stopped"):
+                        continue
+                    x, message = _stage(runner, spec, items, x, lower, upper, k, plan, budget, record,
+                                        message, progress, log, f" of start {s + 1}" if len(points) > 1 else "")
+                    state = {"start": s, "stage": k + 1, "x": [float(v) for v in x], "record": record,
+                             "message": message, "optima": state["optima"],
+                             "budget_from": budget - spec.max_simulations, "precheck": readings}
+                    on_stage({**state, "simulations": runner.count})
+                moved = None
+                if rescan < DELAY_RESCANS and not message.startswith("stopped") and runner.count < budget:
+                    # the same scan in an uninterrupted and a resumed run: both go on alike
+                    moved = _delay_rescan(runner, spec, items, x, log)
+                if moved is None:
+                    break
+                x, first, message = moved, 0, ""
             cost = record[-1]["cost"] if record else math.nan
             state["optima"] = state["optima"] + [{"x": [float(v) for v in x], "cost": float(cost),
                                                   "message": message, "record": record}]
@@ -618,10 +701,11 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
         fitted = experiment.corrected(fitted, values)
         (scored if experiment in spec.experiments else held)[experiment.name] = compare(experiment, fitted)
         simulated[experiment.name] = {"start": first, "fit": fitted}
+    shared = {key: {"value": values[key], "from": sources} for key, sources in final.shares.items()}
     return FitResult(spec, target, items, {u.name: u.start for u in items}, values, covariance,
                      plain, windows, scored, held, before, simulated, record,
                      simulations, time.perf_counter() - started, float(0.5 * r @ r), message,
-                     tuple(items[k].name for k in unseen), optima, readings, reach, reach_from)
+                     tuple(items[k].name for k in unseen), optima, readings, reach, reach_from, shared)
 
 
 def far_columns(experiments, start_outputs, starts: dict) -> list[dict]:

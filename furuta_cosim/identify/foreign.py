@@ -60,7 +60,8 @@ def _write(folder: Path, name: str, header: list[str], rows: np.ndarray, experim
 
 
 def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float = 6.0, seed: int = 0,
-           amplitude: float = 10.0, square: float = 3.0, name: str = "pd") -> Path:
+           amplitude: float = 10.0, square: float = 3.0, name: str = "pd", delay: float = 0.0,
+           free_delay: tuple | None = None, truth: dict | None = None) -> Path:
     """Write a balancing log under a lab's errors-PD (the module's first kind) and return its
     experiment file, which states the law in the lab's words and names its logged output.
 
@@ -81,6 +82,13 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
         The square wave's period (s).
     name : str
         The files' name.
+    delay : float
+        Seconds from each command's write to the motor, inside the loop (the plant stepped in
+        0.25 ms pieces, so a delay lands inside a sample); 0: the next sample's step.
+    free_delay : (float, float), optional
+        The experiment fits the loop's delay within these bounds (s); else it states ``delay``.
+    truth : dict, optional
+        Plant parameters that differ from the plant file's.
 
     Returns
     -------
@@ -97,8 +105,17 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
     last = {"arm": 0.0, "pendulum": 0.0}
     rate = {"arm": 0.0, "pendulum": 0.0}
     rows = []
+    pending: list = []    # (when it reaches the motor, command), with a delay
+    level, fine = 0.0, 0.00025
+
+    def held(session, seconds):   # the motor's voltage held at ``level``, in fine pieces
+        pieces = max(1, int(math.ceil(seconds / fine - 1e-9)))
+        for _ in range(pieces):
+            out = session.step([level], seconds / pieces)
+        return out
+
     with _session(plant) as session:
-        session.reset(parameters={"theta1_start": off})
+        session.reset(parameters={**(truth or {}), "theta1_start": off})
         session.set_io(inputs=["V"], outputs=["theta0", "theta1", "i"])
         y = session.get(["theta0", "theta1", "i"])
         noise = np.random.default_rng([seed, 1]).normal(0.0, 0.004, n)
@@ -112,8 +129,18 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
                 kp, kd = PD_GAINS[key]
                 u += kp * error + kd * rate[key]
             rows.append((t[k], arm_ref[k], pend_ref[k], arm, pendulum, y[2] + noise[k], u))
-            if k < n - 1:
+            if k < n - 1 and not delay:
                 y = session.step([u], PERIOD)
+            elif k < n - 1:
+                pending.append((t[k] + delay, u))
+                now = t[k]
+                while pending and pending[0][0] < t[k + 1] - 1e-12:
+                    when, value = pending.pop(0)
+                    if when > now + 1e-12:
+                        held(session, when - now)
+                        now = when
+                    level = value
+                y = held(session, t[k + 1] - now)
     quantum = 360.0 / COUNTS
     experiment = {
         "description": "a QUBE balancing under its lab's PD at 500 Hz (synthetic)",
@@ -132,6 +159,10 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
                          "output": "u"},
                  "counts": COUNTS},
     }
+    if free_delay is not None:
+        experiment["loop"]["delay"] = {"free": [float(b) for b in free_delay]}
+    elif delay:
+        experiment["loop"]["delay"] = float(delay)
     return _write(folder, name, ["time", "arm_ref", "pend_ref", "arm", "pend", "current", "u"], np.array(rows),
                   experiment, footer=True)
 

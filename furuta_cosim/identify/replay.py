@@ -288,7 +288,11 @@ def simulate(session, target: Target, experiment: Experiment,
         steps = None if experiment.late is None else np.diff(experiment.read_at).tolist()
         for first in range(0, experiment.samples - 1, block):
             for k, row in enumerate(u[first:min(first + block, experiment.samples - 1)].tolist(), start=first):
-                raw[k + 1] = step(row, h) if steps is None else _held(session, row, steps[k], h, many=True)
+                if steps is None:
+                    raw[k + 1] = step(row, h)
+                else:
+                    moved = _held(session, row, steps[k], h, many=True)
+                    raw[k + 1] = raw[k] if moved is None else moved
     except FmuError as error:
         raise SimulationFailed(str(error)) from None
     if not np.all(np.isfinite(raw)):
@@ -300,7 +304,10 @@ def simulate(session, target: Target, experiment: Experiment,
 def _held(session, value, seconds: float, longest: float, many: bool = False):
     """Step ``session`` ``seconds`` with its input(s) held at ``value``, in steps no longer than
     ``longest`` (the log's period: the plant file's integration is stable at it, a late
-    sample's long interval is not); returns the outputs at the end."""
+    sample's long interval is not); returns the outputs at the end, or None where ``seconds``
+    is no time (two readings at one instant: the plant has not moved)."""
+    if seconds <= 1e-9 * longest:
+        return None
     pieces = max(1, int(math.ceil(seconds / longest - 1e-9)))
     inputs = value if many else [value]
     for _ in range(pieces - 1):
@@ -490,8 +497,9 @@ def closed_loop(session, target: Target, experiment: Experiment,
     # a delay of m whole samples and a fraction f of one: over [t_k, t_k + f) the motor gets the
     # command of sample k - m - 1, over the rest of the sample that of k - m; before the window's
     # start, the command logged there (a window that cuts the log mid-run), else 0
-    whole = int(_math.floor(loop.delay / h + 1e-9))
-    part = loop.delay - whole * h
+    delay = experiment.loop_delay(values)   # as stated, or where the fit has it
+    whole = int(_math.floor(delay / h + 1e-9))
+    part = delay - whole * h
     if part < 1e-12 * h:
         part = 0.0
     logged = loop.lead_in.command if loop.lead_in is not None and loop.lead_in.command is not None else np.zeros(0)
@@ -506,11 +514,11 @@ def closed_loop(session, target: Target, experiment: Experiment,
     # the delay, wherever those fall
     timed = experiment.late is not None or loop.compute is not None
     read = experiment.read_at
-    arrive = read + (loop.compute if loop.compute is not None else 0.0) + loop.delay
+    arrive = read + (loop.compute if loop.compute is not None else 0.0) + delay
     pending: list[tuple[float, float]] = []
     level, now_t = 0.0, float(read[0])
     for j in range(-whole - 2, 0):   # the rows before the window, written on time
-        when = now_t + j * h + loop.delay
+        when = now_t + j * h + delay
         if when <= now_t + 1e-12:
             level = written(j)
         else:
@@ -543,8 +551,8 @@ def closed_loop(session, target: Target, experiment: Experiment,
                         _held(session, (level - v_offset) / v_scale, when - now_t, h)
                         now_t = when
                     level = value
-                y = _held(session, (level - v_offset) / v_scale, end - now_t, h)
-                now_t = end
+                y = _held(session, (level - v_offset) / v_scale, end - now_t, h) or y
+                now_t = max(now_t, end)
             elif k < n - 1:
                 now = written(k - whole)
                 if part > 0.0:  # the command before it reaches the motor for the first part

@@ -61,7 +61,14 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     from furuta_cosim.identify.estimate import with_estimate
 
     loaded = [load_experiment(path) for path in experiments]
+    named: dict = {}
+    for experiment in loaded:   # replay.json and the report are keyed by the log's name
+        if experiment.name in named:
+            raise ConfigError([f"{experiment.path}: name: {experiment.name} is the name of {named[experiment.name]} "
+                               "too: give one of them another name: key"])
+        named[experiment.name] = experiment.path
     check_names(target, loaded)
+    delays, said = fitted_delays(target, loaded)
     # a balancing log closes its loop as a fit does (identify/estimate.py): the RMS replay
     # reports is the one identify reports for the same plant
     loaded = [with_estimate(e, target) for e in loaded]
@@ -70,11 +77,12 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                 "notes": [f"{e.name}: segments: {e.segments:g} s is how identify fits it (multiple shooting, each "
                           "segment from its measured state); replay runs its whole window as the log ran ("
                           + ("its loop closed" if e.loop is not None else "open loop on its logged input") + ")"
-                          for e in loaded if e.segments]}
+                          for e in loaded if e.segments] + said,
+                "values": delays}
     with open_session(target) as session:
         for experiment in loaded:
             try:
-                simulated = simulate(session, target, experiment)
+                simulated = simulate(session, target, experiment, delays)
             except SimulationFailed as error:
                 document["experiments"][experiment.name] = {"failure": str(error)}
                 continue
@@ -83,7 +91,7 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                      "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
             try:
-                for output_name, rms in chatter(session, target, experiment, simulated).items():
+                for output_name, rms in chatter(session, target, experiment, simulated, delays).items():
                     entry["outputs"][output_name]["chatter"] = rms
             except SimulationFailed:
                 pass  # the shifted replay failed: the output is judged on its stated noise alone
@@ -100,6 +108,60 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     if out is not None:
         write_text(out / "replay.json", dumps(document, indent=2) + "\n")
     return document
+
+
+def fitted_delays(target: Target, experiments) -> tuple[dict, list[str]]:
+    """(values, notes): each free delay of ``experiments`` at its fitted value where ``target``
+    is a plant that identify wrote (its ``provenance.fit``, the fit.json beside it): a log the
+    fit fitted at its own value, another at the fitted logs' mean of the same delay (an input's
+    or the loop's: the rig's, fit.shared_values); a note per delay says which. Without such a
+    fit, ({}, []): each free delay at its start (the low bound)."""
+    from furuta_cosim.config import load_yaml
+    from furuta_cosim.identify.variants import _load_json
+
+    plant = target.plant
+    free = {(e.alias or e.name, suffix) for e in experiments for suffix in e.free_starts() if suffix.endswith(".delay")}
+    if plant is None or not free:
+        return {}, []
+    data = load_yaml(plant.path)
+    provenance = data.get("provenance") if isinstance(data, dict) else None
+    name = provenance.get("fit") if isinstance(provenance, dict) else None
+    if not isinstance(name, str) or Path(name).name != name or not (Path(plant.path).parent / name).is_file():
+        return {}, [f"{owner}: its {suffix} at its start, {_start_of(experiments, owner, suffix) * 1000:g} ms (the "
+                    f"plant {plant.name} is not a fit with a fit.json beside it)" for owner, suffix in sorted(free)]
+    path = Path(plant.path).parent / name
+    document = _load_json(path)
+    parameters = document.get("parameters") if isinstance(document, dict) else None
+    if not isinstance(parameters, dict):
+        raise ConfigError([f"{path}: parameters: missing: not a fit.json of identify"])
+    fitted = {}
+    for key, entry in parameters.items():
+        value = entry.get("value") if isinstance(entry, dict) else None
+        if isinstance(key, str) and key.endswith(".delay") and isinstance(value, (int, float)) \
+                and not isinstance(value, bool) and 0.0 <= value <= 1.0:
+            fitted[key] = float(value)
+    values, notes = {}, []
+    for owner, suffix in sorted(free):
+        own = f"{owner}.{suffix}"
+        same = sorted(k for k in fitted if k.split(".", 1)[1] == suffix)
+        if own in fitted:
+            values[own] = fitted[own]
+            notes.append(f"{owner}: its {suffix} at {fitted[own] * 1000:.4g} ms, its value in {path.name}")
+        elif same:
+            values[own] = float(np.mean([fitted[k] for k in same]))
+            notes.append(f"{owner}: its {suffix} at {values[own] * 1000:.4g} ms, fitted on {', '.join(same)} "
+                         f"({path.name}; a delay is the rig's, shared by its logs)")
+        else:
+            notes.append(f"{owner}: its {suffix} at its start, {_start_of(experiments, owner, suffix) * 1000:g} ms "
+                         f"({path.name} fitted no {suffix})")
+    return values, notes
+
+
+def _start_of(experiments, owner: str, suffix: str) -> float:
+    for e in experiments:
+        if (e.alias or e.name) == owner and suffix in e.free_starts():
+            return e.free_starts()[suffix].start
+    return 0.0
 
 
 def _whole_replays(logs, target: Target, values: dict) -> dict:

@@ -14,12 +14,13 @@ a controller that is not known) on short segments, each restarted from the measu
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
 
 from furuta_cosim.config import Frozen
-from furuta_cosim.identify.experiment import shifted
+from furuta_cosim.identify.experiment import Delayed, shifted
 
 RATE_WINDOW = 0.025     # s on each side of a sample: the quadratic that gives a rate
 _RATES = {"theta0": "dtheta0", "theta1": "dtheta1"}
@@ -56,7 +57,20 @@ def delayed(experiment):
         return experiment
     inputs = dict(experiment.inputs)
     timed = experiment.late is not None or loop.compute is not None
-    if "V" in inputs and (loop.delay > 0.0 or timed) and not np.isscalar(inputs["V"]):
+    delays = dict(experiment.delays)
+    if "V" in inputs and not np.isscalar(inputs["V"]) and loop.free_delay is not None:
+        # the delay is fitted: the logged command kept, delayed by the fit's value in each run
+        written = np.asarray(inputs["V"], dtype=float)
+        if loop.voltage is not None:
+            written = np.clip(written, -loop.voltage, loop.voltage)
+        inputs["V"] = written
+        m = int(math.ceil(loop.free_delay.bounds[1] / experiment.period)) + 1
+        logged = loop.lead_in.command if loop.lead_in is not None and loop.lead_in.command is not None else np.zeros(0)
+        before = np.concatenate([np.zeros(max(m - len(logged), 0)), logged[max(len(logged) - m, 0):]])
+        writes = (experiment.read_at + (loop.compute if loop.compute is not None else 0.0)) if timed else None
+        delays["V"] = Delayed(loop.free_delay, before, key="loop.delay",
+                              timed=None if writes is None else (writes, written, experiment.read_at, 0))
+    elif "V" in inputs and (loop.delay > 0.0 or timed) and not np.isscalar(inputs["V"]):
         written = np.asarray(inputs["V"], dtype=float)
         if loop.voltage is not None:
             written = np.clip(written, -loop.voltage, loop.voltage)
@@ -66,7 +80,7 @@ def delayed(experiment):
             inputs["V"] = held_means(np.maximum.accumulate(at), written, read)
         else:
             inputs["V"] = shifted(written, loop.delay / experiment.period)
-    return replace(experiment, inputs=Frozen(inputs), loop=None)
+    return replace(experiment, inputs=Frozen(inputs), loop=None, delays=Frozen(delays))
 
 
 def held_means(switches: np.ndarray, values: np.ndarray, samples: np.ndarray) -> np.ndarray:
@@ -105,7 +119,8 @@ def part(experiment, first: int, last: int, name: str, open_loop: bool = False):
     loop = (experiment.loop.cut(keep, experiment.lead_in_at(first))
             if experiment.loop is not None and not open_loop else None)
     # a fitted delay brings in the samples before the part: the log's own, within the window
-    delays = {k: replace(d, before=np.concatenate([d.before, experiment.inputs[k]])[first:first + len(d.before)])
+    delays = {k: replace(d, before=np.concatenate([d.before, experiment.inputs[k]])[first:first + len(d.before)],
+                         timed=None if d.timed is None else (*d.timed[:3], d.timed[3] + first))
               for k, d in experiment.delays.items()}
     return replace(experiment, name=name, t=experiment.t[keep], inputs=Frozen(inputs), delays=Frozen(delays),
                    outputs=Frozen(outputs), start=Frozen(start), loop=loop,
