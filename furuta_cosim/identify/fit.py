@@ -580,6 +580,8 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     check_ranges(spec, target)
     plant_values = _plant_values(target, [p.name for p in spec.free])
     items = unknowns(spec, plant_values)
+    if resume is None and not force:   # a resumed run passed this check when it began
+        _loops_rebuild(spec, log)
     spec = prepared(spec, target)
     everything = list(spec.experiments) + list(spec.validation)
     runner = Runner(target, everything, workers, dask)
@@ -743,6 +745,22 @@ def far_line(entry: dict) -> str:
 
 def _far_lines(experiments, start_outputs, starts: dict) -> list[str]:
     return [f"{e['file']}: outputs.{e['output']}: {far_line(e)}" for e in far_columns(experiments, start_outputs, starts)]
+
+
+def _loops_rebuild(spec, log) -> None:
+    """Each log's stated loop rebuilds its logged command (identify/mismatch.py), checked
+    without the plant before any simulation: a ConfigError naming each that does not."""
+    from furuta_cosim.identify.mismatch import wrong_loop
+
+    started = time.perf_counter()
+    wrong = [line for e in spec.experiments + spec.validation if e.loop is not None
+             for line in [wrong_loop(e)] if line]
+    if wrong:
+        raise ConfigError(wrong + [f"the fit stopped before it began ({time.perf_counter() - started:.1f} s): "
+                                   "state the loop that ran (loop: in each experiment file), or fix the column "
+                                   "named; force fits anyway (--force)"])
+    if any(e.loop is not None for e in spec.experiments + spec.validation):
+        log(f"  each log's loop rebuilds its logged command ({time.perf_counter() - started:.1f} s)")
 
 
 def _say_far(experiments, start_outputs, items, log) -> list[dict]:

@@ -164,7 +164,8 @@ def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
         if name is not None and name not in columns:
             check.fail("loop.law.output", f"{excerpt(name)} is not one of columns ({', '.join(columns)})")
         elif name is not None:
-            _agrees(check, law, law.logged, table[name][keep], name, voltage, feedforward, csv_name, lines[keep])
+            _agrees(check, law, law.logged, table[name][keep], name, voltage, feedforward, csv_name, lines[keep],
+                    period)
     return law
 
 
@@ -310,23 +311,47 @@ def _state_space(check: Checker, entry: dict, conversions, columns):
 
 
 def _agrees(check: Checker, law: LinearLaw, rows: np.ndarray, output: np.ndarray, name: str,
-            voltage, feedforward, csv_name: str, lines) -> None:
+            voltage, feedforward, csv_name: str, lines, period: float) -> None:
     """The law, run on what the log recorded over the window (``rows``: its sources as
-    logged), against the controller's own logged ``output``: beyond AGREE of its range, one
-    line naming the first sample that disagrees."""
-    u, _ = law.respond(rows, law.x0)
-    factor, offset = law.command
-    found = (u + offset) * factor + (0.0 if feedforward is None else feedforward)
-    logged = (output + offset) * factor
-    if voltage is not None:
-        found, logged = np.clip(found, -voltage, voltage), np.clip(logged, -voltage, voltage)
-    span = float(np.max(logged) - np.min(logged)) or max(float(np.max(np.abs(logged))), 1e-12)
-    apart = np.abs(found - logged)
-    if np.max(apart) > AGREE * span:
-        k = int(np.argmax(apart > AGREE * span))
-        check.fail("loop.law", f"{csv_name}: line {int(lines[k])}: the law gives {found[k]:.6g} where "
-                               f"the controller logged {logged[k]:.6g} in {name} ({apart[k] / span:.1%} of its "
-                               f"range, at most {AGREE:.0%}; largest {np.max(apart) / span:.1%}): the law as "
-                               "stated is not the one that ran (a gain, a sign, the error's sense, the "
-                               "derivative's filter or discretization)")
+    logged), against the controller's own logged ``output``: the law's own output (before any
+    feedforward and the voltage limit), or, where the logger's output column holds them too,
+    the law plus the feedforward, clipped. Beyond AGREE of the column's range in both, one line
+    naming the first sample that disagrees and the cause the difference shows (a factor, the
+    sign, a shift: identify/mismatch.py). A cell of the column that is not a number inside
+    the window is named: the law cannot be checked there."""
+    from furuta_cosim.identify.mismatch import cause
 
+    factor, offset = law.command
+    bad = np.nonzero(~np.isfinite(output))[0]
+    if len(bad):
+        check.fail("loop.law.output", f"{csv_name}: line {int(lines[bad[0]])}: {name} holds "
+                                      f"{excerpt(str(output[bad[0]]))} inside the window: the law's output "
+                                      "must be a number at every sample it is checked against")
+        return
+    u, _ = law.respond(rows, law.x0)
+    own = (u + offset) * factor
+    logged = (output + offset) * factor
+    span = float(np.max(logged) - np.min(logged)) or max(float(np.max(np.abs(logged))), 1e-12)
+    if not np.all(np.isfinite(own)):
+        k = int(np.argmax(~np.isfinite(own)))
+        check.fail("loop.law", f"{csv_name}: line {int(lines[k])}: the law's output is not a number there: "
+                               "a reference or measurement it reads is not one")
+        return
+    if np.max(np.abs(own - logged)) <= AGREE * span:
+        return
+    found = own + (0.0 if feedforward is None else feedforward)
+    clipped = logged
+    if voltage is not None:
+        found, clipped = np.clip(found, -voltage, voltage), np.clip(logged, -voltage, voltage)
+    if (feedforward is not None or voltage is not None) and np.max(np.abs(found - clipped)) <= AGREE * span:
+        return
+    apart = np.abs(own - logged)
+    k = int(np.argmax(apart > AGREE * span))
+    why = cause(own, logged, period, AGREE * span / max(
+        float(np.sqrt(np.mean(logged ** 2))), 1e-12))
+    check.fail("loop.law", f"{csv_name}: line {int(lines[k])}: the law gives {own[k]:.6g} where "
+                           f"the controller logged {logged[k]:.6g} in {name} ({apart[k] / span:.1%} of its "
+                           f"range, at most {AGREE:.0%}; largest {np.max(apart) / span:.1%}): the law as "
+                           "stated is not the one that ran: "
+                           + (why or "not a factor, the sign or a shift of up to 10 samples: its gains, the "
+                                     "error's sense, the derivative's filter or discretization"))
