@@ -284,3 +284,27 @@ def test_a_held_out_chirp_is_scored_at_the_fitted_delay_and_replay_uses_it(tmp_p
     assert any("b: its V.delay at" in note and "fitted on a.V.delay" in note for note in replayed["notes"])
     assert replayed["experiments"]["b"]["outputs"]["theta0"]["rms"] == pytest.approx(
         document["validation"]["b"]["theta0"]["rms"], rel=1e-9)
+
+
+def test_a_topic_that_starts_late_names_the_first_row_with_every_value(tmp_path):
+    # a ROS log whose command topic's first message comes after the angles' (fill: true given):
+    # the refusal names the first row where every column read has a value, not "fill: true"
+    path = chirp_log(tmp_path, delay=0.0, seed=1, jitter=True, name="ros", duration=0.5)
+    csv = path.parent / "ros.csv"
+    lines = csv.read_text().splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    for row in rows[:7]:   # the V cells of the first rows emptied
+        row[1] = ""
+    first = next(k for k, row in enumerate(rows) if k >= 7 and row[1] not in ("", "nan"))
+    csv.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    with pytest.raises(ConfigError) as error:
+        load_experiment(path)
+    text = str(error.value)
+    assert "column V: no value yet" in text and "fill: true carries a value forward, never back" in text, text
+    found = re.search(r"is line (\d+) \(t = ([0-9.e+-]+) s\): start the window there", text)
+    assert found and int(found.group(1)) >= first + 2, (first, text)
+    # and the window it names loads
+    data = yaml.safe_load(path.read_text())
+    data["window"] = [float(found.group(2)), 0.5]
+    path.write_text(yaml.safe_dump(data))
+    assert float(found.group(2)) <= load_experiment(path).t[0] < float(found.group(2)) + 0.005

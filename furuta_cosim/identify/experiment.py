@@ -324,8 +324,9 @@ def load_experiment(path: str | Path) -> Experiment:
         t = table[time_column]
         check.done()
     keep = slice(first, last)
+    filled = isinstance(top.get("resample"), dict) and top["resample"].get("fill") is True
     _finite_within(check, table, _used_columns(top, time_column), keep, csv, "window" in top,
-                   resampled="resample" in top)
+                   resampled="resample" in top, filled=filled, time_column=time_column)
     check.done()
     t = t[keep]
     if len(t) < 2:
@@ -483,9 +484,11 @@ def _used_columns(top: dict, time_column: str) -> list[str]:
 
 
 def _finite_within(check: Checker, table, used: list[str], keep: slice, csv: Path, windowed: bool,
-                   resampled: bool = False) -> None:
+                   resampled: bool = False, filled: bool = False, time_column: str = "") -> None:
     """A column the experiment reads holds a number at every row of its window (a not-finite
-    cell elsewhere, a logger's footer, is never read)."""
+    cell elsewhere, a logger's footer, is never read). ``filled``: the log was resampled with
+    ``fill: true``, so an empty cell left is one before its topic's first message: the line
+    names the first row where every column read has a value."""
     lines = table[LINE][keep]
     for name in used:
         if name not in table:
@@ -493,6 +496,16 @@ def _finite_within(check: Checker, table, used: list[str], keep: slice, csv: Pat
         bad = np.nonzero(~np.isfinite(table[name][keep]))[0]
         if len(bad):
             k = int(bad[0])
+            if filled:
+                known = np.all([np.isfinite(table[n]) for n in used if n in table], axis=0)
+                first = int(np.argmax(known)) if np.any(known) else None
+                where = ("no row has a value in every column it reads" if first is None else
+                         f"the first row where every column it reads has one is line {table[LINE][first]} "
+                         f"(t = {float(table[time_column][first]):g} s): start the window there")
+                check.fail("window" if windowed else "data",
+                           f"{csv.name}: line {lines[k]}, column {name}: no value yet (its topic's first message "
+                           f"comes later; fill: true carries a value forward, never back); {where}")
+                return
             check.fail("window" if windowed else "data",
                        f"{csv.name}: line {lines[k]}, column {name}: not a finite number"
                        + (" inside the window" if windowed else "")
