@@ -156,12 +156,26 @@ def cmd_analyze(args) -> int:
         from furuta_cosim.files import output_folder
 
         output_folder(args.plot, "--plot")
+    if (args.rate_filter is not None or args.board_delay is not None) and not args.rig:
+        raise ConfigError(["--rate-filter and --board-delay describe the rig's loop: give --rig"])
     found = analyze_file(args.controller, _model_with_mapping(model, args.mapping) if model else None)
     cfile, model, analysis, c = found.cfile, found.model, found.analysis, found.cfile.controller
     if model.provenance.get("note"):
         print(f"note: {model.provenance['note']}", file=sys.stderr)
+    rig = None
+    if args.rig:
+        from furuta_cosim.design.rigloop import rig_analysis
+        from furuta_cosim.measurement import RATE_FILTER
+        from furuta_cosim.rig.virtual import DELAY
+
+        rig = rig_analysis(model, c, period=None if c.discrete else cfile.period,
+                           delay=DELAY if args.board_delay is None else args.board_delay,
+                           rate_filter=RATE_FILTER if args.rate_filter is None else args.rate_filter)
     if args.json:
-        print(dumps(analysis.as_dict()))
+        document = analysis.as_dict()
+        if rig is not None:
+            document["rig"] = {**rig, "margins": rig["margins"].as_dict() if rig["margins"] is not None else None}
+        print(dumps(document))
     else:
         print(f"{cfile.name} on {model.name} ({'discrete, ' + time_text(c.period, model.time_unit, 'g') if c.discrete else 'continuous'})")
         print("eigenvalues of Abar: " + ", ".join(_complex(z) for z in analysis.eigenvalues))
@@ -171,6 +185,11 @@ def cmd_analyze(args) -> int:
             print(f"spectral abscissa: {analysis.spectral_abscissa:.6g}")
         for line in analysis.verdict():
             print(line)
+        if rig is not None:
+            from furuta_cosim.design.rigloop import rig_text
+
+            for line in rig_text(rig):
+                print(line)
     if args.plot:
         if analysis.running_margins is None:
             print(f"no plots: the loop {'is unstable' if analysis.stable else 'has more than one input'}; "
@@ -183,7 +202,8 @@ def cmd_analyze(args) -> int:
             print("wrote " + ", ".join(str(w) for w in written if w.suffix == ".png"), file=sys.stderr)
     # the exit code follows every verdict printed: the sampled loop of a continuous design too
     sampled_ok = analysis.sampled is None or analysis.sampled.stable
-    return 0 if analysis.stable and sampled_ok else EXIT_FAILED
+    rig_ok = rig is None or rig["stable"]
+    return 0 if analysis.stable and sampled_ok and rig_ok else EXIT_FAILED
 
 
 def cmd_simulate(args) -> int:
@@ -838,6 +858,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mapping", metavar="FILE", help="for a plant FMU given with --model: its mapping")
     p.add_argument("--plot", metavar="DIR", help="write the loop's Bode and Nyquist plots and its sensitivities "
                                                  "|S|, |T| (PNG and SVG) into DIR")
+    p.add_argument("--rig", action="store_true", help="also the loop that runs on a rig: the rates by the "
+                                                      "rate filter of the counted angles, the board's delay")
+    p.add_argument("--rate-filter", type=float, default=None, metavar="HZ",
+                   help="with --rig: the rates' filter (default 40, as rig run)")
+    p.add_argument("--board-delay", type=float, default=None, metavar="SECONDS",
+                   help="with --rig: the command's delay to the motor (default 0.001, the virtual board's)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_analyze)
 
