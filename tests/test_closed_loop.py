@@ -220,3 +220,45 @@ def test_a_late_run_replays_each_command_when_the_board_applied_it(tmp_path):
     # otherwise: the commands agree to rounding over the first 0.3 s
     first = int(0.3 / experiment.period)
     np.testing.assert_allclose(volts[:first], experiment.inputs["V"][:first], rtol=0, atol=1e-9)
+
+
+def test_a_balance_only_run_states_the_start_its_board_shows(tmp_path):
+    """The virtual board lets a lifted pendulum fall for two samples before the first one: the
+    experiment file states the rates and current its own record shows there (they were 0,
+    3 and 6 smoothed standard deviations off), and the smoother's estimate agrees with them."""
+    from furuta_cosim.cli import main
+    from furuta_cosim.identify.estimate import start_estimate, with_estimate
+    from furuta_cosim.identify.experiment import load_experiment
+    from furuta_cosim.identify.replay import target_for
+
+    out = tmp_path / "up"
+    assert main(["rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.05", "--duration", "2",
+                 "-o", str(out)]) == 0
+    stated = yaml.safe_load((out / "experiment.yaml").read_text())["start"]
+    assert stated["theta0"] == "data" and stated["theta1"] == "data"
+    board = np.genfromtxt(out / "board.csv", delimiter=",", names=True)
+    # the first sample is read at 4 ms of the board's time: the row of the step that ends there
+    # and the rates from the angles one step either side
+    k = int(np.argmin(np.abs(board["t"] - 0.0035)))
+    assert stated["dtheta1"] == pytest.approx((board["theta1"][k + 1] - board["theta1"][k - 1]) / 0.001, rel=1e-12)
+    assert stated["dtheta1"] > 0.03
+    target = target_for(plant="qube-servo-3")
+    experiment = with_estimate(load_experiment(out / "experiment.yaml"), target)
+    estimate = start_estimate(experiment, target, {})
+    for name in ("dtheta0", "dtheta1"):
+        value, sd = estimate[name]
+        assert abs(stated[name] - value) < 3 * sd, (name, stated[name], estimate[name])
+
+
+def test_a_board_without_a_record_frees_the_rates_its_counts_show_moving():
+    from furuta_cosim.rig.runner import FREE_RATE, _start
+
+    class Blind:
+        def state_at(self, when):
+            return None
+
+    rows = np.zeros((3, 15))
+    assert _start(Blind(), 0.0, rows)["dtheta1"] == 0.0          # at rest: 0, as it is
+    rows[1, 12] = 3.0                                              # the pendulum's counts moved
+    start = _start(Blind(), 0.0, rows)
+    assert start["dtheta1"] == {"free": [-FREE_RATE, FREE_RATE]} and start["dtheta0"] == 0.0

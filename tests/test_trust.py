@@ -155,8 +155,9 @@ def _spec(folder: Path, logs: dict, change=lambda data: None, off: float = 0.3, 
 
 
 def test_a_window_cut_mid_motion_does_not_keep_its_log_s_start(logs, tmp_path):
-    """The run's start (rates 0, current 0) is refused where the window starts mid-motion: at a
-    sample whose current is far from 0 (15 noise standard deviations), found in the log."""
+    """The run's start (the rates and current of its first sample, near 0) is refused where the
+    window starts mid-motion: at a sample whose current is far from it (15 noise standard
+    deviations), found in the log."""
     log = np.genfromtxt(logs["fitted"].parent / "log.csv", delimiter=",", names=True)
     k = int(np.argmax((log["t"] > 1.0) & (np.abs(log["i"]) > 15 * 0.004)))
     start = float(log["t"][k])
@@ -165,7 +166,9 @@ def test_a_window_cut_mid_motion_does_not_keep_its_log_s_start(logs, tmp_path):
     with pytest.raises(ConfigError) as caught:
         load_experiment(path)
     [line] = caught.value.problems
-    assert "start.i: 0 A, but the measured i at the window's start" in line and f"t = {start:g} s" in line
+    stated = yaml.safe_load(logs["fitted"].read_text())["start"]["i"]
+    assert abs(stated) < 1e-3   # the board's record at the first sample: the run starts at rest
+    assert f"start.i: {stated:g} A, but the measured i at the window's start" in line and f"t = {start:g} s" in line
     assert "i: data" in line and "{free: [lo, hi]}" in line
     # read from the log: taken, and how it was read is said; the run's own start stands at t = 0
     freed = tmp_path / _experiment(logs["fitted"], tmp_path, "freed", lambda d: (
@@ -173,7 +176,7 @@ def test_a_window_cut_mid_motion_does_not_keep_its_log_s_start(logs, tmp_path):
     experiment = load_experiment(freed)
     assert experiment.start["i"] == experiment.outputs["i"].values[0]
     assert "slope of theta0" in experiment.start_from["dtheta0"]
-    assert load_experiment(logs["fitted"]).start["i"] == 0.0
+    assert load_experiment(logs["fitted"]).start["i"] == stated
 
 
 def test_a_window_cut_mid_run_starts_its_loop_where_the_rig_left_it(logs, tmp_path):
@@ -229,7 +232,8 @@ def test_a_fit_of_a_window_cut_mid_run_says_so_in_its_verdict(logs, tmp_path, ca
         if name == "kept":   # the stated rates, judged against the log: refused and said, or they
             # did not mislead the fit (the truth within its interval)
             rates = document["stated_starts"]["fitted"]
-            assert sorted(rates) == ["dtheta0", "dtheta1"] and all(c["stated"] == 0.0 for c in rates.values())
+            start = yaml.safe_load(logs["fitted"].read_text())["start"]   # the run's first sample's
+            assert sorted(rates) == ["dtheta0", "dtheta1"] and all(c["stated"] == start[k] for k, c in rates.items())
             off = max(abs(c["stated"] - c["estimate"]) / c["sigma"] for c in rates.values())
             if off > STATED_START:
                 assert code == 1 and not document["verdict"]["trusted"], (out, err)
@@ -423,8 +427,10 @@ def test_a_start_half_a_count_off_moves_the_fit_within_its_reach(logs, tmp_path,
         assert reach > 0, counted["reach"]
         move = abs(moved["parameters"][name]["value"] - p["value"])
         # a corner moves each value by at most its reach, give or take the two fits' own
-        # convergence (measured: 0.14 and 0.2 of a standard error beyond it, identify/reach.py)
-        assert move <= reach + 0.3 * p["stderr"], (name, move, reach, p["stderr"])
+        # convergence and the reach's first order (measured: 0.14 and 0.2 of a standard error
+        # beyond it with the run's start rates stated 0; 0.53 on M_f with the rates its board's
+        # record shows, whatever the Gauss-Newton steps, 4 or 8: identify/reach.py)
+        assert move <= reach + 0.75 * p["stderr"], (name, move, reach, p["stderr"])
         ratios.append(move / reach)
     assert max(ratios) > 0.5, ratios   # and the bound is not idle
 

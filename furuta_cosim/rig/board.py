@@ -117,6 +117,22 @@ class Board:
         """Disconnect (after :meth:`safe`)."""
         raise NotImplementedError
 
+    def state_at(self, when: float) -> dict | None:
+        """The rig's true state from a record the board keeps of its own, after :meth:`close`.
+
+        Parameters
+        ----------
+        when : float
+            A time on :meth:`clock`'s scale (a sample's reading).
+
+        Returns
+        -------
+        dict or None
+            theta0, dtheta0, theta1, dtheta1 and i there (SI, the model's convention); None for
+            a board that keeps no record (real hardware).
+        """
+        return None
+
     def clock(self) -> Clock:
         """The runner's clock: the host's, or a simulated one (a virtual board run fast)."""
         return Clock()

@@ -309,7 +309,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     make_folder(out, root=True)
     started_wall = time.time()
     signals = _AtSamples()
-    woke = clock = None
+    woke = clock = first_read = None
     try:
         board.write(0.0)
         board.arm_watchdog(watchdog)
@@ -320,6 +320,8 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         for k in range(steps):
             deadline = start + k * period
             woke = clock.wait_until(deadline)
+            if k == 0:
+                first_read = woke   # the board's own record gives the state there (_start)
             signals.deliver()  # a Ctrl-C or SIGTERM that came during the last sample, now
             reading = board.read()
             theta0 = signs[0] * reading.arm * per_count
@@ -376,7 +378,8 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
             except Exception as error:  # noqa: BLE001 - the rig is safe; the log is what matters now
                 failed.append(f"close: {type(error).__name__}: {error}")
             summary = _write(out, rows[:done], cfile, board, plant, period, status, code, reason, failed,
-                             started_wall, runtime, limits, scenario, rate_filter)
+                             started_wall, runtime, limits, scenario, rate_filter,
+                             _start(board, first_read, rows[:done]))
             log(f"{'stopped' if code else 'done'}: {reason}; the rig is at 0 V with the amplifier "
                 f"{'off' if not failed else 'in an unknown state: ' + '; '.join(failed)}")
         finally:
@@ -410,8 +413,31 @@ def _within_catch(board, cfile, signs, per_count: float, catch: float) -> None:
                            "driven"])
 
 
+# rad/s: a start rate that the log cannot tell (a board that keeps no record of its own, and
+# counts that moved over the first sample) is freed within this in the experiment file
+FREE_RATE = 20.0
+
+
+def _start(board, first_read: float | None, rows: np.ndarray) -> dict:
+    """The experiment file's ``start:``: the angles as counted at the first sample (``data``);
+    the rates and the current the board's own record shows there (the virtual board: a
+    balance-only run's pendulum has fallen for two samples before the first one), else 0 where
+    the counts stood still over the first sample and freed where they moved (a rig let go by
+    hand: the log cannot tell how fast it was moving)."""
+    start = {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0}
+    truth = board.state_at(first_read) if first_read is not None else None
+    if truth is not None:
+        start.update({k: float(truth[k]) for k in ("dtheta0", "dtheta1", "i")})
+        return start
+    if len(rows) >= 2:
+        for name, column in (("dtheta0", 11), ("dtheta1", 12)):   # arm_counts, pendulum_counts
+            if abs(float(rows[1, column]) - float(rows[0, column])) >= 2:
+                start[name] = {"free": [-FREE_RATE, FREE_RATE]}
+    return start
+
+
 def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, code, reason, failed,
-           started_wall, runtime, limits, scenario, rate_filter) -> dict:
+           started_wall, runtime, limits, scenario, rate_filter, start: dict | None = None) -> dict:
     from furuta_cosim.config import plain_name
     from furuta_cosim.metrics import regulation_settling
     from furuta_cosim.swingup import wrap
@@ -428,10 +454,10 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
         "inputs": {"V": {"column": "V", "unit": "V"}},
         "outputs": {"theta0": {"column": "theta0", "unit": "rad", "quantum": 2 * math.pi / counts},
                     "theta1": {"column": "theta1", "unit": "rad", "quantum": 2 * math.pi / counts}},
-        # the run starts at rest: its rates and current are 0 at t = 0, exactly (a window cut
-        # from it later must say its own start: identify/experiment.py refuses these where
-        # the data contradict them)
-        "start": {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
+        # the angles as counted, the rates and current as the board's record shows them, else
+        # 0 or freed (_start; a window cut from it later must say its own start:
+        # identify/experiment.py refuses these where the data contradict them)
+        "start": start or {"theta0": "data", "dtheta0": 0.0, "theta1": "data", "dtheta1": 0.0, "i": 0.0},
         "rig": {"board": board.name, "controller": kept or name, "period": period, "status": status,
                 # the plant file it ran on (name and content): replay uses it unless told another
                 "plant": plant.path.name, "plant_sha256": content_sha256(plant)},

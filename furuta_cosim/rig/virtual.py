@@ -42,7 +42,7 @@ class VirtualRig:
 
     def __init__(self, fmu: str, start: dict, sensors: dict, *, amplifier: float = AMPLIFIER,
                  delay: float = DELAY, step: float = STEP, seed: int = 0, capacity: int = 1_000_000,
-                 lifted: bool = False):
+                 lifted: bool = False, held: bool = False):
         import numpy as np
 
         from furuta_cosim.fmu.session import PlantSession
@@ -63,6 +63,10 @@ class VirtualRig:
         # held up by hand before the run (``upright=``): the pendulum's encoder keeps the zero it
         # was given hanging, and a runner's zeroing moves the arm's alone
         self.lifted = bool(lifted)
+        # a pendulum held up by hand (``upright=``) is let go when the amplifier is first
+        # enabled: until then the plant does not move, however long the board runs before the
+        # run starts (a paced board's process starts half a second early; it had fallen)
+        self.held = bool(held)
         self.pending: list[tuple[float, float]] = []   # (when it reaches the motor, volts)
         self.written = 0.0      # the last command written
         self.level = 0.0        # what the amplifier is driving toward (after the delay)
@@ -121,7 +125,9 @@ class VirtualRig:
         """Step the plant to ``until`` (whole steps of ``step``), logging each step."""
         while self.t + 0.5 * self.step <= until:
             volts = self.applied()
-            self.theta0, self.theta1, self.current = self.session.step([volts], self.step)
+            self.held = self.held and not self.enabled
+            if not self.held:
+                self.theta0, self.theta1, self.current = self.session.step([volts], self.step)
             self._record(volts)
             self.t += self.step
 
@@ -205,10 +211,13 @@ class VirtualBoard(Board):
         if hanging:  # a real pendulum starts hanging down, at rest
             start.setdefault("theta1_start", math.pi)
         self.arguments = (str(build_fmu(plant)), start, dict(plant.sensors))
-        self.settings = {"amplifier": amplifier, "delay": delay, "step": step, "seed": seed, "lifted": bool(lifted)}
+        self.settings = {"amplifier": amplifier, "delay": delay, "step": step, "seed": seed, "lifted": bool(lifted),
+                         "held": bool(lifted)}
         self.late = float(late)   # the simulated clock's lateness at most (fast only)
         self.rig: VirtualRig | None = None
         self._process = self._shared = None
+        self._t0: float | None = None   # a paced board's t0 on the host's clock (its time is since then)
+        self._record = None             # a simulated rig's own record, kept at close
 
     @classmethod
     def from_argument(cls, argument: str, plant=None, **options) -> "VirtualBoard":
@@ -256,7 +265,7 @@ class VirtualBoard(Board):
             return
         context = multiprocessing.get_context("spawn")
         self._shared = context.Array("d", _SLOTS, lock=False)
-        self._shared[_T0] = time.perf_counter()
+        self._shared[_T0] = self._t0 = time.perf_counter()
         self._process = context.Process(target=_serve, args=(self.arguments, self.settings, self._shared,
                                                              str(self.log_path) if self.log_path else "",
                                                              os.getpid()), daemon=False)
@@ -334,6 +343,7 @@ class VirtualBoard(Board):
             self.rig.advance(self.rig.t + self.rig.delay + 2 * self.rig.step)
             if self.log_path is not None:
                 self.rig.save_log(self.log_path)
+            self._record = self.rig.log[:self.rig.rows].copy()   # state_at reads it
             self.rig.close()
             self.rig = None
         if self._process is not None:
@@ -345,6 +355,32 @@ class VirtualBoard(Board):
 
     def clock(self) -> Clock:
         return Clock() if self.rig is None else _SimulatedClock(self.rig, self.late, self.settings["seed"])
+
+    def state_at(self, when: float) -> dict | None:
+        """From its record (board.csv, written at close): each row holds the state at the end
+        of the step that starts at its ``t``, on the rig's time (the clock's, or since t0 for a
+        paced board); the rates by a central difference of the angles over one step each way
+        (the record keeps no rates; 0.5 ms steps: within 1e-3 rad/s of the model's)."""
+        import numpy as np
+
+        if self._record is not None:   # the simulated rig's, kept in memory
+            rows = {name: self._record[:, j] for j, name in enumerate(LOG_COLUMNS)}
+        elif self.log_path is not None and self.log_path.is_file():
+            rows = np.genfromtxt(self.log_path, delimiter=",", names=True)
+            if rows.ndim == 0:
+                return None
+        else:
+            return None
+        if len(rows["t"]) < 3:
+            return None
+        step = self.settings["step"]
+        at = when if self._t0 is None else when - self._t0
+        k = int(round((at - step) / step - float(rows["t"][0]) / step))
+        if not 1 <= k < len(rows["t"]) - 1:
+            return None
+        rate = {name: (float(rows[name][k + 1]) - float(rows[name][k - 1])) / (2 * step) for name in ("theta0", "theta1")}
+        return {"theta0": float(rows["theta0"][k]), "dtheta0": rate["theta0"], "theta1": float(rows["theta1"][k]),
+                "dtheta1": rate["theta1"], "i": float(rows["i"][k])}
 
     def _signal(self, slot: int) -> None:
         self._shared[slot] += 1.0
