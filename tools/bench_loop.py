@@ -18,6 +18,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import math
 import shutil
@@ -45,13 +47,14 @@ def late(seeds: int, lateness: float) -> None:
     for seed in range(seeds):
         with tempfile.TemporaryDirectory() as scratch:
             out = Path(scratch) / "run"
-            code = cli(["rig", "run", "swingup-qube", "--board", f"virtual:fast,late={lateness:g}", "--duration", "8",
-                        "--seed", str(seed), "-o", str(out)])
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                code = cli(["rig", "run", "swingup-qube", "--board", f"virtual:fast,late={lateness:g}", "--duration",
+                            "8", "--seed", str(seed), "-o", str(out)])
             experiment = load_experiment(out / "experiment.yaml")
-        q = 2 * math.pi / experiment.loop.counts
-        with open_session(target) as session:
-            replayed, _ = closed_loop(session, target, experiment)
-            shifted, _ = closed_loop(session, target, experiment, phase=0.5)
+            q = 2 * math.pi / experiment.loop.counts
+            with open_session(target) as session:
+                replayed, _ = closed_loop(session, target, experiment)
+                shifted, _ = closed_loop(session, target, experiment, phase=0.5)
         row = []
         for name in ("theta0", "theta1"):
             log = float(np.sqrt(np.mean((replayed[name] - experiment.outputs[name].values) ** 2))) / q
@@ -113,7 +116,8 @@ def wrong() -> None:
     root = Path(__file__).resolve().parent.parent
     with tempfile.TemporaryDirectory() as scratch:
         out = Path(scratch) / "run"
-        cli(["rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.05", "--duration", "10", "-o", str(out)])
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            cli(["rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.05", "--duration", "10", "-o", str(out)])
         shutil.copy(root / "scenarios" / "controllers" / "lqr-paper.yaml", out / "controllers")
         data = yaml.safe_load((out / "experiment.yaml").read_text())
         data["loop"]["controller"] = "controllers/lqr-paper.yaml"
@@ -122,8 +126,11 @@ def wrong() -> None:
         spec.write_text(yaml.safe_dump({"name": "wrong", "plant": "qube-servo-3", "experiments": [str(out / "stated.yaml")],
                                         "free": {"R_a": {"start": 9.0, "bounds": [1.0, 30.0]}}}))
         started = time.perf_counter()
-        code = cli(["identify", str(spec), "-o", str(Path(scratch) / "fit")])
+        said = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(said):
+            code = cli(["identify", str(spec), "-o", str(Path(scratch) / "fit")])
         took = time.perf_counter() - started
+        print("  " + "\n  ".join(line for line in said.getvalue().splitlines() if line.startswith("error:")))
     print(f"wrong: a 10 s balancing log of lqr-qube stated with lqr-paper: identify exit {code} in {took:.2f} s")
 
 
