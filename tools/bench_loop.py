@@ -8,8 +8,11 @@
   swing-up caught and balanced on counts parts from itself by that much).
 - loop-delay: a QUBE balancing under a lab's errors-PD whose command reaches the motor
   ``--delay`` s late inside the loop (foreign.pd_log); R_a and M_f freed 20 % off their truth
-  and the loop's delay in [0, 20] ms (loop.delay: {free: ...}). Per seed: the delay found and
-  its error, whether each 95 % interval (sandwich and reach; profiles off) holds the truth.
+  and the loop's delay in [0, 20] ms (loop.delay: {free: ...}). identify refuses it (a
+  balancing log's smoother hides the delay: measured at 8be368e, before the refusal, the fit
+  gave 3.99 ms for 5 on ten seeds of ten with intervals 0.04 ms wide); then the same fit with
+  the delay stated at its truth. Per seed: whether each 95 % interval (sandwich and reach;
+  profiles off) holds the truth.
 - wrong: a balancing log of lqr-qube stated with lqr-paper: identify's refusal, its time.
 
     python tools/bench_loop.py [--seeds 10] [--parts late,loop-delay,wrong] [--late 0.003] [--delay 0.005]
@@ -77,34 +80,38 @@ def loop_delay(seeds: int, delay: float) -> None:
     from furuta_cosim.identify.synthetic import truth
 
     true = truth()
+    from furuta_cosim.errors import ConfigError
+
     print(f"loop-delay: a lab's PD whose command is {delay * 1000:g} ms late inside its loop; R_a, M_f from 20 % "
-          "off and loop.delay in [0, 20] ms fitted (profiles off)")
-    errors, inside, within, seconds = [], 0, 0, []
+          "off (profiles off)")
+    within, seconds = 0, []
     for seed in range(seeds):
         with tempfile.TemporaryDirectory() as scratch:
             folder = Path(scratch)
-            path = pd_log(folder, seed=seed, delay=delay, free_delay=(0.0, 0.02))
             spec = folder / "spec.yaml"
-            lines = ["name: pd-late", "plant: qube-servo-3", f"experiments: [{path.name}]", "free:"]
-            lines += [f"  {k}: {{start: {true[k] * 1.2!r}, bounds: [{lo!r}, {hi!r}]}}" for k, (lo, hi) in FREE.items()]
-            spec.write_text("\n".join(lines) + "\n")
-            started = time.perf_counter()
-            identify(spec, folder / "fit", profiles=False)
-            seconds.append(time.perf_counter() - started)
-            document = json.loads((folder / "fit" / "fit.json").read_text())
+            for free in (True, False):
+                path = pd_log(folder, seed=seed, delay=delay, free_delay=(0.0, 0.02) if free else None)
+                lines = ["name: pd-late", "plant: qube-servo-3", f"experiments: [{path.name}]", "free:"]
+                lines += [f"  {k}: {{start: {true[k] * 1.2!r}, bounds: [{lo!r}, {hi!r}]}}"
+                          for k, (lo, hi) in FREE.items()]
+                spec.write_text("\n".join(lines) + "\n")
+                started = time.perf_counter()
+                try:
+                    identify(spec, folder / "fit", profiles=False)
+                except ConfigError as error:
+                    if seed == 0:
+                        print(f"  loop.delay free: refused in {time.perf_counter() - started:.2f} s: {error}")
+                    continue
+                seconds.append(time.perf_counter() - started)
+                document = json.loads((folder / "fit" / "fit.json").read_text())
         parameters = document["parameters"]
-        found = parameters[f"{path.stem}.loop.delay"]
-        lo, hi = found["interval"]
-        errors.append(abs(found["value"] - delay))
-        inside += lo <= delay <= hi
         ok = all(parameters[k]["interval"][0] <= true[k] <= parameters[k]["interval"][1] for k in FREE)
         within += ok
-        print(f"  seed {seed}: delay {found['value'] * 1000:.3f} ms [{lo * 1000:.3f}, {hi * 1000:.3f}]; "
+        print(f"  seed {seed}, the delay stated: "
               + ", ".join(f"{k} {parameters[k]['value']:.4g} [{parameters[k]['interval'][0]:.4g}, "
                           f"{parameters[k]['interval'][1]:.4g}]" for k in FREE)
               + f"; {'trusted' if document['verdict']['trusted'] else 'NOT trusted'}; {seconds[-1]:.1f} s")
-    print(f"  delay error median {statistics.median(errors) * 1000:.3f} ms, worst {max(errors) * 1000:.3f} ms; truth "
-          f"inside the delay's interval {inside}/{seeds}, inside both R_a's and M_f's {within}/{seeds}; fit "
+    print(f"  the delay stated: truth inside both R_a's and M_f's intervals {within}/{seeds}; fit "
           f"{statistics.median(seconds):.1f} s median, {max(seconds):.1f} s worst")
 
 
