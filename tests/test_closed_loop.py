@@ -131,7 +131,7 @@ def test_a_rig_log_replays_on_the_plant_it_was_recorded_on(run, capsys):
 
 
 @pytest.mark.parametrize("values, expected", [
-    ({5: "-0.001"}, "loop.late: log.csv: line 7: -0.001 s: expected seconds from 0 to 10 samples"),
+    ({5: "-0.5"}, "loop.late: log.csv: line 7: -0.5 s: expected seconds from -0.2 to 0.02 (10 samples)"),
     ({5: "nan"}, "log.csv: line 7, column late: not a finite number"),
     ({5: "0.5"}, "loop.late: log.csv: line 7: 0.5 s: expected seconds"),
     ({5: "0.0", 4: "0.0039"}, "loop.late: log.csv: line 7: read before the sample before it"),

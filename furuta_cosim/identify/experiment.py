@@ -45,6 +45,7 @@ _LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "v
               "late", "compute")
 _LAW_KEYS = ("K", "F", "period")
 MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
+MAX_STALE_SAMPLES = 100  # a reading older than its sample's time (loop.late < 0) by at most this
 # s of the log before a window that a closed-loop replay runs its controller over (its rate
 # filter forgets in milliseconds, a dynamic controller's state in well under this)
 LEAD_IN = 2.0
@@ -527,13 +528,19 @@ def _timing_column(check: Checker, entry: dict, key: str, table, columns, keep, 
     values = np.asarray(table[name][keep], dtype=float)
     lines = table[LINE][keep]
     values = np.where((values < 0) & (values > -1e-9), 0.0, values)  # a clock's rounding below 0
-    bad = np.nonzero(~np.isfinite(values) | (values < 0) | (values > MAX_DELAY_SAMPLES * period))[0]
+    # a reading sampled before its sample's time (a board that samples on its own clock) is late
+    # by less than 0; the time from a reading to its write is never
+    # (a board busy elsewhere samples late on its own clock: the reading is older, its write
+    # further from it, by up to MAX_STALE_SAMPLES)
+    lowest = -MAX_STALE_SAMPLES * period if key == "late" else 0.0
+    highest = (MAX_DELAY_SAMPLES if key == "late" else MAX_STALE_SAMPLES) * period
+    bad = np.nonzero(~np.isfinite(values) | (values < lowest) | (values > highest))[0]
     if len(bad):
         k = int(bad[0])
-        check.fail(f"loop.{key}", f"{csv.name}: line {lines[k]}: {float(values[k])!r} s: expected seconds from 0 to "
-                                  f"{MAX_DELAY_SAMPLES} samples ({MAX_DELAY_SAMPLES * period:g} s)")
+        check.fail(f"loop.{key}", f"{csv.name}: line {lines[k]}: {float(values[k])!r} s: expected seconds from "
+                                  f"{lowest:g} to {highest:g} ({round(highest / period)} samples)")
         return None
-    if not np.any(values > 1e-9):
+    if not np.any(np.abs(values) > 1e-9):
         return None   # on time to the nanosecond (a simulated clock): the nominal times are exact
     if t is not None:
         # two readings at one instant are possible (a late sample's successor read at once, on a

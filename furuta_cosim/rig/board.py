@@ -26,6 +26,7 @@ class Reading:
     arm: int
     pendulum: int
     current: float | None = None
+    at: float | None = None   # when the board sampled it, on its clock's scale (None: as it was read)
 
 
 class Clock:
@@ -77,13 +78,19 @@ class Board:
         reading = self.read()
         return reading.arm, reading.pendulum
 
-    def write(self, volts: float) -> None:
+    def write(self, volts: float) -> float | None:
         """Drive the motor.
 
         Parameters
         ----------
         volts : float
             The voltage (the board's own range limits it further).
+
+        Returns
+        -------
+        float or None
+            When the board takes the write to have been made, on :meth:`clock`'s scale; None:
+            as the call returns.
         """
         raise NotImplementedError
 
@@ -116,6 +123,12 @@ class Board:
     def close(self) -> None:
         """Disconnect (after :meth:`safe`)."""
         raise NotImplementedError
+
+    def write_times(self) -> dict:
+        """Where a board applies a write from another time than it was made (a process of
+        its own that saw it late): {the time :meth:`write` returned: the time it took it
+        from}; empty for a board that applies each write as it is made."""
+        return {}
 
     def state_at(self, when: float) -> dict | None:
         """The rig's true state from a record the board keeps of its own, after :meth:`close`.

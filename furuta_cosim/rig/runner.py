@@ -11,8 +11,10 @@ reading, controller and writing take tens of microseconds of a 2 ms period here 
 ``tools/bench_rig.py``), a controller FMU would add an FMI call per sample for nothing, and the
 C loop of the simulations steps an FMU, not a board.
 
-A run folder holds ``log.csv`` (every sample: its time, how late it started and how long it
-took, the reference, the command and the voltage applied, the angles, the current, the rates,
+A run folder holds ``log.csv`` (every sample: its time, how late its reading was sampled (the
+board's own instant where it gives one: a paced virtual board's last step may be before the
+deadline, and the column then reads negative) and how long from there to the command's write,
+the reference, the command and the voltage applied, the angles, the current, the rates,
 the counts, the mode), ``experiment.yaml`` (the log as an experiment file: the voltage applied
 is its input, so ``replay``, ``identify`` and ``regress`` read it as they read any log), the
 controller files it ran (``controllers/``), ``summary.json`` and ``summary.md`` (why it
@@ -285,6 +287,8 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     per_count = 2.0 * math.pi / counts
     rates = RateFilter(period, rate_filter)
     rows = np.full((steps, len(COLUMNS)), np.nan)
+    woke_late = np.zeros(steps)   # s each sample's loop woke after its deadline (the machine's)
+    stamps = np.full(steps, np.nan)   # when each sample's command was written
     mode = getattr(runtime, "mode", None)
     status, code, reason, failed = "finished", FINISHED, f"ran its {steps * period:g} s", []
     done = 0
@@ -309,7 +313,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
     make_folder(out, root=True)
     started_wall = time.time()
     signals = _AtSamples()
-    woke = clock = first_read = None
+    woke = clock = first_read = read_at = None
     try:
         board.write(0.0)
         board.arm_watchdog(watchdog)
@@ -320,10 +324,13 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
         for k in range(steps):
             deadline = start + k * period
             woke = clock.wait_until(deadline)
-            if k == 0:
-                first_read = woke   # the board's own record gives the state there (_start)
             signals.deliver()  # a Ctrl-C or SIGTERM that came during the last sample, now
             reading = board.read()
+            # when the reading was sampled: the board's own time where it says (a paced board's
+            # process may have last stepped before the deadline), else as the loop woke
+            read_at = reading.at if reading.at is not None else woke
+            if k == 0:
+                first_read = read_at   # the board's own record gives the state there (_start)
             theta0 = signs[0] * reading.arm * per_count
             theta1 = math.pi + signs[1] * reading.pendulum * per_count  # zeroed hanging
             dtheta0, dtheta1 = rates((theta0, theta1))
@@ -332,17 +339,20 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
             command = runtime.control(x, float(reference[k]))
             volts = supervisor.clip(command)
             late = woke - deadline
+            woke_late[k] = late
             # a trial's runtime says which reference it followed and in which phase it is
-            rows[k] = (k * period, late, 0.0, getattr(runtime, "reference", reference[k]), command, volts,
+            rows[k] = (k * period, read_at - deadline, 0.0, getattr(runtime, "reference", reference[k]), command, volts,
                        theta0, theta1, current, dtheta0, dtheta1, reading.arm, reading.pendulum,
                        runtime.mode if mode is not None else 1.0, getattr(runtime, "phase", 0.0))
             done = k + 1
             supervisor.check(k * period, x, reading.current, volts, late)
-            board.write(volts)
+            stamp = board.write(volts)
+            written = stamp if stamp is not None else clock.now()
             if not board.reload_watchdog():
                 raise Trip("watchdog", f"the board's watchdog had expired at t = {k * period:.4f} s "
                                        "(the loop stalled longer than its timeout)")
-            rows[k, 2] = clock.now() - woke
+            rows[k, 2] = max(written - read_at, 0.0)
+            stamps[k] = written
             if getattr(runtime, "finished", False):
                 reason = f"at rest after {k * period:.3f} s"
                 break
@@ -357,7 +367,7 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
             rows[done - 1, 5] = 0.0  # the command of the tripping sample was never written
         if done and rows[done - 1, 2] == 0.0 and woke is not None:
             # how long the tripping sample took too (a late sample trips a loaded machine's run)
-            rows[done - 1, 2] = max(clock.now() - woke, 1e-9)
+            rows[done - 1, 2] = max(clock.now() - (read_at if read_at is not None else woke), 1e-9)
     except KeyboardInterrupt as stop:
         if isinstance(stop, Signalled):   # SIGTERM, SIGHUP
             status, code, said = "terminated", stop.code, stop.name
@@ -377,9 +387,10 @@ def run_rig(controller, board: Board, plant, output: str | Path, *, duration: fl
                 board.close()
             except Exception as error:  # noqa: BLE001 - the rig is safe; the log is what matters now
                 failed.append(f"close: {type(error).__name__}: {error}")
+            _taken(board, rows[:done], stamps[:done])
             summary = _write(out, rows[:done], cfile, board, plant, period, status, code, reason, failed,
                              started_wall, runtime, limits, scenario, rate_filter,
-                             _start(board, first_read, rows[:done]))
+                             _start(board, first_read, rows[:done]), woke_late[:done])
             log(f"{'stopped' if code else 'done'}: {reason}; the rig is at 0 V with the amplifier "
                 f"{'off' if not failed else 'in an unknown state: ' + '; '.join(failed)}")
         finally:
@@ -413,6 +424,19 @@ def _within_catch(board, cfile, signs, per_count: float, catch: float) -> None:
                            "driven"])
 
 
+def _taken(board, rows: np.ndarray, stamps: np.ndarray) -> None:
+    """Each sample's `compute` from its reading to when the board took its write from, where
+    the board says that was later than the write (its process saw it after its time had passed
+    there): the log then says when the command reached the motor, less the delay."""
+    times = board.write_times()
+    if not times:
+        return
+    for k, stamp in enumerate(stamps):
+        taken = times.get(float(stamp)) if np.isfinite(stamp) else None
+        if taken is not None and taken > stamp:
+            rows[k, 2] += taken - stamp
+
+
 # rad/s: a start rate that the log cannot tell (a board that keeps no record of its own, and
 # counts that moved over the first sample) is freed within this in the experiment file
 FREE_RATE = 20.0
@@ -437,7 +461,8 @@ def _start(board, first_read: float | None, rows: np.ndarray) -> dict:
 
 
 def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, code, reason, failed,
-           started_wall, runtime, limits, scenario, rate_filter, start: dict | None = None) -> dict:
+           started_wall, runtime, limits, scenario, rate_filter, start: dict | None = None,
+           woke_late: np.ndarray | None = None) -> dict:
     from furuta_cosim.config import plain_name
     from furuta_cosim.metrics import regulation_settling
     from furuta_cosim.swingup import wrap
@@ -479,9 +504,13 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
                "experiment file (replay, identify, regress read it).\n"
                + yaml.safe_dump(experiment, sort_keys=False))
     t = rows[:, 0] if len(rows) else np.zeros(0)
-    late, compute = rows[:, 1] if len(rows) else np.zeros(0), rows[:, 2] if len(rows) else np.zeros(0)
+    read, compute = rows[:, 1] if len(rows) else np.zeros(0), rows[:, 2] if len(rows) else np.zeros(0)
+    # the machine's timing: when the loop woke; a reading's own instant (the log's `late`) can be
+    # older where the board samples on its own clock (a paced virtual board's last step)
+    late = woke_late if woke_late is not None and len(woke_late) == len(rows) else read
     intervals = np.diff(t + late) if len(rows) > 1 else np.zeros(0)
-    overruns = int(np.sum(late[1:] + compute[1:] > period)) if len(rows) > 1 else 0
+    # a command written after the next deadline: its reading's instant plus the computing time
+    overruns = int(np.sum(read[1:] + compute[1:] > period)) if len(rows) > 1 else 0
     timing = {"late_ms": _stats(1000 * late), "jitter_ms": _stats(1000 * np.abs(intervals - period)),
               "compute_ms": _stats(1000 * compute[np.isfinite(compute)]), "overruns": overruns,
               "period_ms": 1000 * period}

@@ -78,11 +78,17 @@ class VirtualRig:
         self.capacity = capacity
 
     # -- what the runner does through the board ------------------------------------------------
-    def write(self, volts: float) -> None:
+    def write(self, volts: float, at: float | None = None) -> float:
+        """A command written at ``at`` (the rig's time; None: now), reaching the motor the
+        delay later: a paced board learns of a write up to a step after it was made, and
+        applies it from when it was made (or from now, where that has passed here); returns
+        the time it is taken from."""
         if not math.isfinite(volts):
             volts = 0.0  # a board drives no NaN: the runner's supervisor has already refused it
         self.written = volts
-        self.pending.append((self.t + self.delay, volts))
+        when = self.t if at is None or not math.isfinite(at) else max(float(at), self.t)
+        self.pending.append((when + self.delay, volts))
+        return when
 
     def arm(self, timeout: float) -> None:
         self.watchdog = (float(timeout), self.t)
@@ -114,7 +120,7 @@ class VirtualRig:
         """The voltage at the motor now."""
         while self.pending and self.pending[0][0] <= self.t + 1e-12:
             self.level = self.pending.pop(0)[1]
-        if self.watchdog is not None and not self.expired and self.t - self.watchdog[1] > self.watchdog[0]:
+        if self.watchdog is not None and not self.expired and self.t - self.watchdog[1] > self.watchdog[0] + 1e-9:
             self.expired = True  # as a hardware watchdog: 0 V and the amplifier off until reopened
             self.enabled = False
         if not self.enabled or self.expired:
@@ -122,14 +128,23 @@ class VirtualRig:
         return max(-self.amplifier, min(self.amplifier, self.level))
 
     def advance(self, until: float) -> None:
-        """Step the plant to ``until`` (whole steps of ``step``), logging each step."""
-        while self.t + 0.5 * self.step <= until:
-            volts = self.applied()
+        """Step the plant to ``until`` (steps of ``step`` on its grid), logging each step; a
+        command that reaches the motor inside a step splits it there, so the voltage switches
+        when the write and the delay say, not at the next step. It never passes ``until`` (a
+        paced board's wall time): a reading is of a state that has been, and a write stamped
+        now is never behind it."""
+        while True:
+            end = (math.floor(self.t / self.step + 1e-6) + 1) * self.step   # the grid's next point
+            if end > until + 1e-9 * self.step:
+                break
+            volts = self.applied()   # the commands due by now taken first: the next is then ahead
+            if self.pending and self.t + 1e-9 * self.step < self.pending[0][0] < end - 1e-9 * self.step:
+                end = self.pending[0][0]
             self.held = self.held and not self.enabled
             if not self.held:
-                self.theta0, self.theta1, self.current = self.session.step([volts], self.step)
+                self.theta0, self.theta1, self.current = self.session.step([volts], end - self.t)
             self._record(volts)
-            self.t += self.step
+            self.t = end
 
     def _record(self, volts: float) -> None:
         if self.rows == len(self.log):
@@ -218,6 +233,8 @@ class VirtualBoard(Board):
         self._process = self._shared = None
         self._t0: float | None = None   # a paced board's t0 on the host's clock (its time is since then)
         self._record = None             # a simulated rig's own record, kept at close
+        self._tickets: dict = {}        # a paced board's writes: count -> [made, taken by its process]
+        self._open: set = set()         # the counts not yet taken
 
     @classmethod
     def from_argument(cls, argument: str, plant=None, **options) -> "VirtualBoard":
@@ -265,7 +282,6 @@ class VirtualBoard(Board):
             return
         context = multiprocessing.get_context("spawn")
         self._shared = context.Array("d", _SLOTS, lock=False)
-        self._shared[_T0] = self._t0 = time.perf_counter()
         self._process = context.Process(target=_serve, args=(self.arguments, self.settings, self._shared,
                                                              str(self.log_path) if self.log_path else "",
                                                              os.getpid()), daemon=False)
@@ -275,6 +291,7 @@ class VirtualBoard(Board):
             if not self._process.is_alive() or time.monotonic() > deadline:
                 raise ConfigError([f"board: the virtual board did not start (exit code {self._process.exitcode})"])
             time.sleep(0.005)
+        self._t0 = self._shared[_T0]   # its time starts when it is ready (its process took a while)
 
     def zero_encoders(self) -> None:
         if self.rig is not None:
@@ -288,9 +305,10 @@ class VirtualBoard(Board):
         shared = self._shared
         while True:  # a seqlock: retried while the board writes a reading
             before = shared[_SEQ]
-            values = (shared[_ARM_COUNTS], shared[_PENDULUM_COUNTS], shared[_CURRENT])
+            values = (shared[_ARM_COUNTS], shared[_PENDULUM_COUNTS], shared[_CURRENT], shared[_READ_T])
             if before == shared[_SEQ] and int(before) % 2 == 0:
-                return Reading(int(values[0]), int(values[1]), values[2])
+                # sampled at the board's time of its last step, which a busy process may leave behind
+                return Reading(int(values[0]), int(values[1]), values[2], at=self._t0 + values[3])
 
     def counts(self) -> tuple[int, int]:
         if self.rig is not None:   # a check before a run draws none of the current's noise
@@ -298,12 +316,24 @@ class VirtualBoard(Board):
         reading = self.read()
         return reading.arm, reading.pendulum
 
-    def write(self, volts: float) -> None:
+    def write(self, volts: float) -> float | None:
+        """Drive the motor; returns when the write was made on the clock's scale (a paced board:
+        its process applies it from then), None on the simulated clock (at its now)."""
         if self.rig is not None:
             self.rig.write(volts)
-        elif self._shared is not None:
+            return None
+        if self._shared is not None:
+            self._collect()
+            count = int(self._shared[_WRITES]) + 1
+            slot = _RING + 3 * (count % _RING_SIZE)
+            stamp = time.perf_counter()
+            self._shared[slot], self._shared[slot + 1], self._shared[slot + 2] = stamp - self._t0, volts, math.nan
             self._shared[_VOLTS] = volts
             self._signal(_WRITES)
+            self._tickets[count] = [stamp, None]
+            self._open.add(count)
+            return stamp
+        return None
 
     def enable(self) -> None:
         self._set_enabled(1.0)
@@ -356,6 +386,23 @@ class VirtualBoard(Board):
     def clock(self) -> Clock:
         return Clock() if self.rig is None else _SimulatedClock(self.rig, self.late, self.settings["seed"])
 
+    def _collect(self) -> None:
+        """The times the board's process took the writes it has seen from (ring slots it
+        filled), kept before the ring comes round to them again."""
+        for count in list(self._open):
+            value = self._shared[_RING + 3 * (count % _RING_SIZE) + 2]
+            if math.isfinite(value):
+                self._tickets[count][1] = self._t0 + value
+                self._open.discard(count)
+
+    def write_times(self) -> dict:
+        """{when a write was made: when the board's process took it from}, on the clock's
+        scale, for each write of a paced board whose process has taken it."""
+        if self._shared is None:
+            return {}
+        self._collect()
+        return {stamp: taken for stamp, taken in self._tickets.values() if taken is not None}
+
     def state_at(self, when: float) -> dict | None:
         """From its record (board.csv, written at close): each row holds the state at the end
         of the step that starts at its ``t``, on the rig's time (the clock's, or since t0 for a
@@ -375,10 +422,13 @@ class VirtualBoard(Board):
             return None
         step = self.settings["step"]
         at = when if self._t0 is None else when - self._t0
-        k = int(round((at - step) / step - float(rows["t"][0]) / step))
-        if not 1 <= k < len(rows["t"]) - 1:
+        starts = np.asarray(rows["t"], dtype=float)
+        ends = np.append(starts[1:], starts[-1] + step)   # each row: the state at the end of its step
+        k = int(np.argmin(np.abs(ends - at)))
+        if not 1 <= k < len(ends) - 1 or abs(ends[k] - at) > 0.5 * step:
             return None
-        rate = {name: (float(rows[name][k + 1]) - float(rows[name][k - 1])) / (2 * step) for name in ("theta0", "theta1")}
+        span = float(ends[k + 1] - ends[k - 1])
+        rate = {name: (float(rows[name][k + 1]) - float(rows[name][k - 1])) / span for name in ("theta0", "theta1")}
         return {"theta0": float(rows["theta0"][k]), "dtheta0": rate["theta0"], "theta1": float(rows["theta1"][k]),
                 "dtheta1": rate["theta1"], "i": float(rows["i"][k])}
 
@@ -411,8 +461,11 @@ class _SimulatedClock(Clock):
 # the shared slots between the runner and the board's process (one writer each); a signal
 # slot counts up, and the board acts once per new count
 (_T0, _READY, _STOP, _VOLTS, _WRITES, _ENABLE, _TIMEOUT, _ARMED, _RELOADS, _ZERO, _EXPIRED, _SEQ,
- _ARM_COUNTS, _PENDULUM_COUNTS, _CURRENT) = range(15)
-_SLOTS = 16
+ _ARM_COUNTS, _PENDULUM_COUNTS, _CURRENT, _READ_T) = range(16)
+# the runner's writes, in a ring the board's process reads in order: a process held up by a busy
+# machine still applies every command from when it was made (with one slot it saw the last alone)
+_RING, _RING_SIZE = 16, 256          # (time, volts, taken) triples from slot _RING on
+_SLOTS = _RING + 3 * _RING_SIZE
 _GRACE = 0.5  # s the board runs on after its watchdog expired with its runner gone
 
 
@@ -421,8 +474,10 @@ def _serve(arguments, settings, shared, log: str, parent: int) -> None:
     gone and the watchdog has held it at 0 V for a while; then its log."""
     rig = VirtualRig(*arguments, **settings)
     seen = {slot: 0.0 for slot in (_WRITES, _ARMED, _RELOADS, _ZERO)}
-    t0 = shared[_T0]
     clock = Clock()
+    # the rig's time starts now, once its plant is loaded (the same clock as the runner's): a
+    # time taken before the process started left it half a second behind, reading stale states
+    shared[_T0] = t0 = clock.now()
     orphaned_at = None
     try:
         publish(rig, shared)
@@ -443,8 +498,13 @@ def _serve(arguments, settings, shared, log: str, parent: int) -> None:
                 seen[_RELOADS] = shared[_RELOADS]
                 rig.reload()
             if shared[_WRITES] != seen[_WRITES]:
-                seen[_WRITES] = shared[_WRITES]
-                rig.write(shared[_VOLTS])
+                latest = int(shared[_WRITES])
+                for count in range(max(int(seen[_WRITES]) + 1, latest - _RING_SIZE + 1), latest + 1):
+                    slot = _RING + 3 * (count % _RING_SIZE)
+                    # taken from when it was made, or from now if this process saw it after its
+                    # time had passed here (the runner held up between its stamp and its signal)
+                    shared[slot + 2] = rig.write(shared[slot + 1], at=shared[slot])
+                seen[_WRITES] = float(latest)
             rig.enabled = shared[_ENABLE] == 1.0 and not rig.expired
             rig.advance(now)
             shared[_EXPIRED] = float(rig.expired)
@@ -464,4 +524,5 @@ def publish(rig: VirtualRig, shared) -> None:
     reading = rig.reading()
     shared[_SEQ] += 1.0  # odd: being written
     shared[_ARM_COUNTS], shared[_PENDULUM_COUNTS], shared[_CURRENT] = reading.arm, reading.pendulum, reading.current
+    shared[_READ_T] = rig.t
     shared[_SEQ] += 1.0
