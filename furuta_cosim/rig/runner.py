@@ -495,6 +495,10 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
         delay = getattr(board, "settings", {}).get("delay")  # known for the virtual board only
         if delay:
             experiment["loop"]["delay"] = float(delay)
+    elif getattr(board, "settings", {}).get("delay"):
+        # a table played open loop: its voltage reaches the motor the board's delay late (unsaid,
+        # a fit of the board's own chirp took R_a 0.3 % low with the truth outside its interval)
+        experiment["inputs"]["V"]["delay"] = float(board.settings["delay"])
     if board.has_current:
         experiment["outputs"]["i"] = {"column": "i", "unit": "A",
                                       "noise": float(plant.sensors.get("current_noise", 0.004)) or 0.004}
