@@ -6,6 +6,9 @@
   each angle's RMS in encoder quanta, and beside it how far two replays of the same log are
   from each other when their encoders' zero is half a count apart (the loop's own chatter: a
   swing-up caught and balanced on counts parts from itself by that much).
+- paced: the same swing-up on the paced board in real time, beside ``--hogs`` spinning
+  processes (samples late, commands written after the next deadline, runs that trip), replayed
+  on its own plant: each angle's RMS in encoder quanta and in noise floors as replay judges it.
 - loop-delay: a QUBE balancing under a lab's errors-PD whose command reaches the motor
   ``--delay`` s late inside the loop (foreign.pd_log); R_a and M_f freed 20 % off their truth
   and the loop's delay in [0, 20] ms (loop.delay: {free: ...}). identify refuses it (a
@@ -15,7 +18,8 @@
   profiles off) holds the truth.
 - wrong: a balancing log of lqr-qube stated with lqr-paper: identify's refusal, its time.
 
-    python tools/bench_loop.py [--seeds 10] [--parts late,loop-delay,wrong] [--late 0.003] [--delay 0.005]
+    python tools/bench_loop.py [--seeds 10] [--parts late,paced,loop-delay,wrong] [--late 0.003]
+                               [--delay 0.005] [--hogs 2]
 """
 
 from __future__ import annotations
@@ -72,6 +76,47 @@ def late(seeds: int, lateness: float) -> None:
         selves = [r[j][1] for r in found]
         print(f"  {name}: {statistics.median(logs):.2f} quanta median, {max(logs):.2f} worst from the log; "
               f"{statistics.median(selves):.2f} median, {max(selves):.2f} worst between two replays")
+
+
+def paced(seeds: int, hogs: int) -> None:
+    import subprocess
+
+    import numpy as np
+
+    from furuta_cosim.cli import main as cli
+    from furuta_cosim.identify.experiment import load_experiment
+    from furuta_cosim.identify.replay import compare, open_session, simulate, target_for
+
+    target = target_for(plant="qube-servo-3")
+    print(f"paced: swingup-qube on the paced virtual board, 6 s, beside {hogs} spinning processes, replayed on "
+          "its own plant")
+    floors = []
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as scratch:
+            out = Path(scratch) / "run"
+            spinning = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(hogs)]
+            try:
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                    code = cli(["rig", "run", "swingup-qube", "--board", "virtual", "--duration", "6", "--seed",
+                                str(seed), "-o", str(out)])
+            finally:
+                for process in spinning:
+                    process.kill()
+                    process.wait()
+            summary = json.loads((out / "summary.json").read_text())
+            experiment = load_experiment(out / "experiment.yaml")
+            with open_session(target) as session:
+                found = compare(experiment, simulate(session, target, experiment))
+        row = [found[n]["rms"] / found[n]["quantum"] for n in ("theta0", "theta1")]
+        floors.append(row)
+        timing = summary["timing"]
+        print(f"  seed {seed}: {summary['status']} after {summary['seconds']:.2f} s (exit {code}), woke up to "
+              f"{timing['late_ms']['max']:.1f} ms late, {timing['overruns']} overruns, readings up to "
+              f"{-1000 * float(np.min(experiment.late)) if experiment.late is not None else 0.0:.1f} ms old; arm "
+              f"{row[0]:.2f}, pendulum {row[1]:.2f} quanta RMS")
+    for j, name in enumerate(("arm", "pendulum")):
+        values = [r[j] for r in floors]
+        print(f"  {name}: {statistics.median(values):.2f} quanta median, {max(values):.2f} worst (the floor: one quantum)")
 
 
 def loop_delay(seeds: int, delay: float) -> None:
@@ -144,20 +189,23 @@ def wrong() -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--parts", default="late,loop-delay,wrong")
+    parser.add_argument("--parts", default="late,paced,loop-delay,wrong")
     parser.add_argument("--late", type=float, default=0.003, help="s: each sample up to this late (late part)")
     parser.add_argument("--delay", type=float, default=0.005, help="s: the delay inside the PD's loop")
+    parser.add_argument("--hogs", type=int, default=2, help="spinning processes beside the paced runs")
     args = parser.parse_args()
     started = time.perf_counter()
     for part in args.parts.split(","):
         if part == "late":
             late(args.seeds, args.late)
+        elif part == "paced":
+            paced(args.seeds, args.hogs)
         elif part == "loop-delay":
             loop_delay(args.seeds, args.delay)
         elif part == "wrong":
             wrong()
         else:
-            parser.error(f"--parts: {part!r}: expected late, loop-delay or wrong")
+            parser.error(f"--parts: {part!r}: expected late, paced, loop-delay or wrong")
     print(f"{time.perf_counter() - started:.0f} s in all")
 
 
