@@ -600,6 +600,12 @@ def cmd_replay(args) -> int:
                 floors += f" (the floor with the loop's chatter, {c['chatter']:.3g} RMS)"
             print(f"  {name:14s} {output:8s} RMS {c['rms']:.4g}{degrees}{floors}{shown}"
                   + ("  (its loop closed)" if entry.get("loop") == "closed" else ""))
+        mode = entry.get("mode")
+        if mode is not None:
+            said = "; ".join(f"{'caught' if m == 1.0 else 'fell'} at {t:.3f} s" for t, m in mode["logged"]) or "no switch"
+            again = "; ".join(f"{'caught' if m == 1.0 else 'fell'} at {t:.3f} s" for t, m in mode["replayed"]) or "no switch"
+            print(f"  {name:14s} mode     the log: {said}; the replay: "
+                  + ("the same" if mode["agree"] else f"{again} (apart from {mode['first_apart']:.3f} s)"))
     if args.output:
         print(f"figures and replay.json in {args.output}")
     if document["far"]:

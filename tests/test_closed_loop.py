@@ -34,9 +34,15 @@ def _replay(path):
 def test_a_swing_up_and_balance_log_replays_with_its_loop_closed(run):
     loop = yaml.safe_load((run / "experiment.yaml").read_text())["loop"]
     assert loop == {"controller": "controllers/swingup-qube.yaml", "reference": "r", "rate_filter": 40.0,
-                    "counts": 2048, "late": "late", "compute": "compute", "voltage": 10.0, "delay": 0.001}
+                    "counts": 2048, "late": "late", "compute": "compute", "mode": "mode", "voltage": 10.0,
+                    "delay": 0.001}
     closed = _replay(run / "experiment.yaml")
     assert closed["experiments"]["run"]["loop"] == "closed"
+    # the replay's controller catches the pendulum at the sample the log's did
+    mode = closed["experiments"]["run"]["mode"]
+    summary = json.loads((run / "summary.json").read_text())
+    assert mode["agree"] and mode["logged"] == mode["replayed"] and mode["logged"][0][1] == 1.0
+    assert mode["logged"][0][0] == pytest.approx(summary["swingup"]["caught_at"], abs=1e-9)
     rms = {o: c["rms"] for o, c in closed["experiments"]["run"]["outputs"].items()}
     # the same plant, the same controller, the same sensors: within the encoders' rounding
     assert rms["theta1"] < 3 * QUANTUM and rms["theta0"] < 5 * QUANTUM, rms
@@ -262,3 +268,23 @@ def test_a_board_without_a_record_frees_the_rates_its_counts_show_moving():
     rows[1, 12] = 3.0                                              # the pendulum's counts moved
     start = _start(Blind(), 0.0, rows)
     assert start["dtheta1"] == {"free": [-FREE_RATE, FREE_RATE]} and start["dtheta0"] == 0.0
+
+
+def test_a_mode_the_replay_does_not_switch_where_the_log_did_is_named(run, tmp_path):
+    # the log's mode column moved 10 samples later: the replay's catch is where it was, and
+    # the comparison says from when they part
+    import shutil
+
+    folder = tmp_path / "moved"
+    shutil.copytree(run, folder)
+    lines = (folder / "log.csv").read_text().splitlines()
+    k = lines[0].split(",").index("mode")
+    rows = [line.split(",") for line in lines[1:]]
+    modes = [row[k] for row in rows]
+    for row, value in zip(rows, ["0.0"] * 10 + modes[:-10]):
+        row[k] = value
+    (folder / "log.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    found = _replay(folder / "experiment.yaml")["experiments"]["run"]["mode"]
+    assert not found["agree"]
+    assert found["logged"][0][0] == pytest.approx(found["replayed"][0][0] + 10 * 0.002, abs=1e-9)
+    assert found["first_apart"] == pytest.approx(found["replayed"][0][0], abs=1e-9)

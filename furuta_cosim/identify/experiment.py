@@ -42,7 +42,7 @@ LINE = "\0line"  # read_csv's entry for the line number of each row in the file
 _KEYS = ("name", "description", "data", "header", "columns", "time", "window", "inputs",
          "outputs", "start", "parameters", "delimiter", "rig", "loop", "segments", "resample")
 _LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "voltage", "counts", "delay",
-              "late", "compute")
+              "late", "compute", "mode")
 _LAW_KEYS = ("K", "F", "period")
 MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
 MAX_STALE_SAMPLES = 100  # a reading older than its sample's time (loop.late < 0) by at most this
@@ -150,6 +150,8 @@ class Loop:
     lead_in: LeadIn | None = None
     # ``loop.delay: {free: [lo, hi]}``: the delay is fitted (``delay`` its start, the bounds' low end)
     free_delay: Free | None = None
+    # the controller's mode at each sample, as logged (a swing-up: 0 swinging up, 1 balancing)
+    mode: np.ndarray | None = None
 
     def cut(self, keep: slice, lead_in: LeadIn | None = None) -> "Loop":
         """The loop over the samples ``keep`` of its log's window; ``lead_in``: the rows
@@ -158,7 +160,8 @@ class Loop:
             return None if values is None else values[keep]
 
         return replace(self, reference=part(self.reference), feedforward=part(self.feedforward),
-                       compute=part(self.compute), lead_in=self.lead_in if not keep.start else lead_in,
+                       compute=part(self.compute), mode=part(self.mode),
+                       lead_in=self.lead_in if not keep.start else lead_in,
                        linear=None if self.linear is None else self.linear.cut(keep))
 
     def controller_file(self):
@@ -480,7 +483,7 @@ def _used_columns(top: dict, time_column: str) -> list[str]:
         section = top.get(key) if isinstance(top.get(key), dict) else {}
         used += [e["column"] for e in section.values() if isinstance(e, dict) and isinstance(e.get("column"), str)]
     loop = top.get("loop") if isinstance(top.get("loop"), dict) else {}
-    used += [loop[k] for k in ("reference", "feedforward", "late", "compute") if isinstance(loop.get(k), str)]
+    used += [loop[k] for k in ("reference", "feedforward", "late", "compute", "mode") if isinstance(loop.get(k), str)]
     return list(dict.fromkeys(used))
 
 
@@ -598,7 +601,7 @@ def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: f
             return table[name][keep].copy()
         return None
 
-    reference, feedforward = column("reference"), column("feedforward")
+    reference, feedforward, mode = column("reference"), column("feedforward"), column("mode")
     compute = None
     if "compute" in entry:
         compute = _timing_column(check, entry, "compute", table, columns, keep, period, csv)
@@ -631,7 +634,7 @@ def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: f
         return None
     return Loop(controller, digest, reference, float(rate), None if voltage is None else float(voltage),
                 float(counts), float(delay), law, feedforward, compute=compute, linear=linear,
-                free_delay=free_delay)
+                free_delay=free_delay, mode=mode)
 
 
 def _free_delay(check: Checker, value, key: str, period: float) -> Free | None:

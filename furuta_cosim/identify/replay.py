@@ -263,12 +263,13 @@ def overrides(target: Target, experiment: Experiment, values: Mapping[str, float
 
 
 def simulate(session, target: Target, experiment: Experiment,
-             values: Mapping[str, float] | None = None) -> dict[str, np.ndarray]:
+             values: Mapping[str, float] | None = None, record: dict | None = None) -> dict[str, np.ndarray]:
     """The experiment's outputs as the plant gives them at every sample of its window, in the
     experiment's (SI) units; raises SimulationFailed when the run cannot reach its end. With a
-    ``loop`` the controller that ran closes the loop again (:func:`closed_loop`)."""
+    ``loop`` the controller that ran closes the loop again (:func:`closed_loop`; ``record``
+    takes its mode switches)."""
     if experiment.loop is not None:
-        return closed_loop(session, target, experiment, values)[0]
+        return closed_loop(session, target, experiment, values, record=record)[0]
     names = list(experiment.outputs)
     inputs = list(experiment.inputs)
     fmu_out = [target.output(n) for n in names]
@@ -408,7 +409,11 @@ def _commander(loop, experiment: Experiment):
     window that cuts the log mid-run (``loop.lead_in``), as they ran on the rig."""
     if loop.linear is not None:
         step = loop.linear.stepper()
-        return lambda k, a0, a1, current: step(k, {"theta0": a0, "theta1": a1, "i": current})
+
+        def law(k, a0, a1, current):
+            return step(k, {"theta0": a0, "theta1": a1, "i": current})
+        law.switches = list
+        return law
     from furuta_cosim.measurement import RateFilter
 
     runtime = _runtime(loop, experiment.period)
@@ -428,11 +433,20 @@ def _commander(loop, experiment: Experiment):
             r0, r1 = rates((b0, b1))
             runtime.control([b0, r0, b1, r1, current], r)
 
+    warmed = []   # the control calls of the lead-in, before the window's first sample
+
     def command(k, a0, a1, current):
         if k == 0 and lead is not None:
             warm(a0, a1)
+            warmed.append(len(lead.current))
         r0, r1 = rates((a0, a1))
         return float(runtime.control([a0, r0, a1, r1, current], float(reference[k])))
+
+    def switches():
+        """A swing-up's mode switches in the window: (sample, new mode)."""
+        skip = warmed[0] if warmed else 0
+        return [(k - skip, m) for k, m in getattr(runtime, "switches", []) if k >= skip]
+    command.switches = switches
     return command
 
 
@@ -453,7 +467,7 @@ NOISE_DRAW = "noise_draw"
 
 def closed_loop(session, target: Target, experiment: Experiment,
                 values: Mapping[str, float] | None = None,
-                phase: float = 0.0) -> tuple[dict[str, np.ndarray], np.ndarray]:
+                phase: float = 0.0, record: dict | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """(outputs, the voltage the controller wrote) of the experiment with its loop closed: at each
     sample the controller sees what it saw on the rig (the angles as the encoders count them,
     rates by the same filter, the current), the log's feedforward is added, the command is
@@ -560,6 +574,8 @@ def closed_loop(session, target: Target, experiment: Experiment,
                 y = session.step([(now - v_offset) / v_scale], h - part)
     except FmuError as error:
         raise SimulationFailed(str(error)) from None
+    if record is not None:   # a swing-up's switches (sample of the window, new mode), as replayed
+        record["switches"] = command.switches()
     if not np.all(np.isfinite(raw)) or not np.all(np.isfinite(volts)):
         k = int(np.argmax(~(np.all(np.isfinite(raw), axis=1) & np.isfinite(volts))))
         raise SimulationFailed(f"{target.label}: the closed loop is not finite at t = {experiment.t[k]:g} s")

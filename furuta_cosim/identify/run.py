@@ -85,8 +85,9 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                 "values": delays}
     with open_session(target) as session:
         for experiment in loaded:
+            record: dict = {}
             try:
-                simulated = simulate(session, target, experiment, delays)
+                simulated = simulate(session, target, experiment, delays, record=record)
             except SimulationFailed as error:
                 document["experiments"][experiment.name] = {"failure": str(error)}
                 continue
@@ -94,6 +95,8 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                      "sha256": experiment.sha256, "samples": experiment.samples,
                      "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
+            if experiment.loop is not None and experiment.loop.mode is not None:
+                entry["mode"] = modes(experiment, record.get("switches", []))
             try:
                 for output_name, rms in chatter(session, target, experiment, simulated, delays).items():
                     entry["outputs"][output_name]["chatter"] = rms
@@ -112,6 +115,22 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     if out is not None:
         write_text(out / "replay.json", dumps(document, indent=2) + "\n")
     return document
+
+
+def modes(experiment, replayed: list) -> dict:
+    """The controller's mode switches as the log has them (its ``loop.mode`` column) and as the
+    replay's controller made them: each as [time (s), new mode]; ``agree`` when they are the
+    same switches at the same samples, else ``first_apart``, the time of the first that is not."""
+    logged_mode = np.asarray(experiment.loop.mode, dtype=float)
+    changes = np.nonzero(np.diff(logged_mode) != 0)[0] + 1
+    logged = [(int(k), float(logged_mode[k])) for k in changes]
+    ours = [(int(k), float(m)) for k, m in replayed if 0 <= k < experiment.samples]
+    t = experiment.t
+    apart = next((min(a[0], b[0]) for a, b in zip(logged, ours) if a != b), None)
+    if apart is None and len(logged) != len(ours):
+        apart = (logged + ours)[min(len(logged), len(ours))][0]
+    return {"logged": [[float(t[k]), m] for k, m in logged], "replayed": [[float(t[k]), m] for k, m in ours],
+            "agree": apart is None, "first_apart": None if apart is None else float(t[apart])}
 
 
 def fitted_delays(target: Target, experiments) -> tuple[dict, list[str]]:

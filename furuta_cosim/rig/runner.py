@@ -490,6 +490,8 @@ def _write(out: Path, rows: np.ndarray, cfile, board, plant, period, status, cod
     if kept is not None:  # the loop that ran, for a replay that closes it again
         experiment["loop"] = {"controller": kept, "reference": "r", "rate_filter": rate_filter,
                               "counts": int(counts), "late": "late", "compute": "compute"}
+        if getattr(runtime, "mode", None) is not None and getattr(runtime, "switches", None) is not None:
+            experiment["loop"]["mode"] = "mode"   # a swing-up's: replay compares its own switches
         if limits.voltage is not None:
             experiment["loop"]["voltage"] = limits.voltage
         delay = getattr(board, "settings", {}).get("delay")  # known for the virtual board only
