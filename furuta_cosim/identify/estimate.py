@@ -57,15 +57,12 @@ def balancing(experiment) -> bool:
     return bool(np.all(np.abs(np.mod(pendulum + math.pi, 2 * math.pi) - math.pi) < UPRIGHT))
 
 
-def _model(target, values: Mapping[str, float], period: float, delay: float):
-    """(Ad, B_before, B_now, C, whole, friction, states): the plant linearized upright at ``values``
-    (Coulomb friction left out of the linearization) and sampled at ``period``, the voltage
-    reaching the motor ``delay`` after its sample: over a sample the motor gets one command for
-    the delay's fraction of a sample and the next for the rest. ``friction``: None, or (the
-    discretized input matrix of the joints' torques, each joint's rate's state index, Tc0,
-    Tc1, w_c) to add the Coulomb friction back as a known torque (:func:`estimated_noise`)."""
-    from scipy.linalg import expm
-
+def _linear(target, values: Mapping[str, float]):
+    """(A, B, Bt, C, states, coulomb): the plant linearized upright at ``values`` (Coulomb
+    friction left out), continuous: B the voltage's input, Bt the joints' torques' (None where
+    the friction is not added back), C the angles' and current's rows; ``coulomb``: None, or
+    (each joint's rate's state index, Tc0, Tc1, w_c) to add the friction back as a known
+    torque (:func:`estimated_noise`)."""
     from furuta_cosim.fmu.linearize import linearize
     from furuta_cosim.fmu.session import model_description
 
@@ -91,14 +88,27 @@ def _model(target, values: Mapping[str, float], period: float, delay: float):
     A, C = np.asarray(lin.A), np.asarray(lin.C)
     B_all = np.asarray(lin.B)
     B = B_all[:, lin.inputs.index(v_name)][:, None]
-    n = A.shape[0]
-    friction = None
     rates = [lin.states.index(s) if s in lin.states else None for s in ("dtheta0", "dtheta1")]
     if len(torques) == 2 and None not in rates and (coulomb[0] > 0 or coulomb[1] > 0) and coulomb[2] > 0:
-        Bt = B_all[:, [lin.inputs.index(t) for t in torques]]
+        return A, B, B_all[:, [lin.inputs.index(t) for t in torques]], C, list(lin.states), (rates, *coulomb)
+    return A, B, None, C, list(lin.states), None
+
+
+def _model(target, values: Mapping[str, float], period: float, delay: float):
+    """(Ad, B_before, B_now, C, whole, friction, states): the plant linearized upright at ``values``
+    (:func:`_linear`) and sampled at ``period``, the voltage reaching the motor ``delay`` after
+    its sample: over a sample the motor gets one command for the delay's fraction of a sample
+    and the next for the rest. ``friction``: None, or (the discretized input matrix of the
+    joints' torques, each joint's rate's state index, Tc0, Tc1, w_c)."""
+    from scipy.linalg import expm
+
+    A, B, Bt, C, states, coulomb = _linear(target, values)
+    n = A.shape[0]
+    friction = None
+    if Bt is not None:
         block = np.zeros((n + 2, n + 2))
         block[:n, :n], block[:n, n:] = A * period, Bt * period
-        friction = (expm(block)[:n, n:], rates, *coulomb)
+        friction = (expm(block)[:n, n:], *coulomb)
 
     def flow(seconds: float):
         block = np.zeros((n + 1, n + 1))
@@ -110,7 +120,7 @@ def _model(target, values: Mapping[str, float], period: float, delay: float):
     part = delay - whole * period
     first, g_first = flow(part) if part > 1e-12 * period else (np.eye(n), np.zeros((n, 1)))
     rest, g_rest = flow(period - part if part > 1e-12 * period else period)
-    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole, friction, list(lin.states)
+    return rest @ first, (rest @ g_first)[:, 0], g_rest[:, 0], C, whole, friction, states
 
 
 def _setup(experiment, target, values: Mapping[str, float]):
@@ -119,6 +129,8 @@ def _setup(experiment, target, values: Mapping[str, float]):
     motor over each sample (``before``, ``now``) and the process noise."""
     from scipy.linalg import solve_discrete_are
 
+    if experiment.jittered:
+        return _setup_varying(experiment, target, values)
     loop = experiment.loop
     Ad, B_before, B_now, C, whole, friction, states = _model(target, values, experiment.period,
                                                                 experiment.loop_delay(values))
@@ -148,6 +160,123 @@ def _setup(experiment, target, values: Mapping[str, float]):
                 now=every[1:N + 1], before=every[:N], Q=Q, steady=steady)
 
 
+def _setup_varying(experiment, target, values: Mapping[str, float]) -> dict:
+    """:func:`_setup`'s for a log whose clock jitters: the plant sampled over each logged
+    interval (``Phi``), the voltage at the motor switching where each command arrived (its
+    sample's reading, plus its computing time, plus the loop's delay, as the replay applies it:
+    identify/replay.py closed_loop) and what it adds over each interval (``known``), the
+    process noise of each interval (the voltage's disturbance held over it)."""
+    from scipy.linalg import expm, solve_discrete_are
+
+    loop = experiment.loop
+    A, B, Bt, C, states, coulomb = _linear(target, values)
+    n = A.shape[0]
+    names = ["theta0", "theta1"] + (["i"] if "i" in experiment.outputs and C.shape[0] > 2 else [])
+    C = C[:len(names)]
+    y = np.column_stack([experiment.outputs[k].values for k in names])
+    turns = 2 * math.pi * round(float(np.mean(y[:, 1])) / (2 * math.pi))
+    y[:, 1] -= turns
+    R = np.diag([experiment.outputs[k].sigma ** 2 for k in names])
+    written = experiment.input_at("V")
+    lead = loop.lead_in.command if loop.lead_in is not None and loop.lead_in.command is not None else np.zeros(0)
+    if loop.voltage is not None:
+        written = np.clip(written, -loop.voltage, loop.voltage)
+        lead = np.clip(lead, -loop.voltage, loop.voltage)
+    N, h = len(written), experiment.period
+    read = np.asarray(experiment.read_at, dtype=float)
+    delay = experiment.loop_delay(values)
+    whole = int(math.floor(delay / h + 1e-9))
+    # the commands before the window, written on time at the period; the level at its start
+    level = 0.0
+    times, volts = [], []
+    for j in range(-whole - 2, 0):
+        value = float(lead[j]) if -j <= len(lead) else 0.0
+        when = read[0] + j * h + delay
+        if when <= read[0] + 1e-12:
+            level = value
+        else:
+            times.append(when)
+            volts.append(value)
+    compute = loop.compute if loop.compute is not None else np.zeros(N)
+    times = np.maximum.accumulate(np.concatenate([times, read[:N - 1] + compute[:N - 1] + delay]))
+    volts = np.concatenate([volts, written[:N - 1]])
+    # the intervals, each cut where a command arrives inside it
+    points = np.union1d(read, times[(times > read[0]) & (times < read[-1])])
+    start, end = points[:-1], points[1:]
+    interval = np.clip(np.searchsorted(read, start, side="right") - 1, 0, N - 2)
+    arrived = np.searchsorted(times, start + 1e-12, side="right") - 1
+    held = np.where(arrived >= 0, volts[np.maximum(arrived, 0)], level)
+    torques = 0 if Bt is None else Bt.shape[1]
+    block = np.zeros((n + 1 + torques, n + 1 + torques))
+    block[:n, :n], block[:n, n] = A, B[:, 0]
+    if Bt is not None:
+        block[:n, n + 1:] = Bt
+    steps = np.diff(read)
+    over = _flows(block, steps)   # each interval: Phi, the voltage's, the torques'
+    Phi, gamma = over[:, :n, :n], over[:, :n, n]
+    pieces = _flows(block[:n + 1, :n + 1], end - start)[:, :n, n]
+    after = _flows(A, read[interval + 1] - end)
+    known = np.zeros((N - 1, n))
+    np.add.at(known, interval, np.einsum("kij,kj->ki", after, pieces) * held[:, None])
+    Q = np.einsum("ki,kj->kij", gamma, gamma) * INPUT_NOISE ** 2 + np.eye(n) * 1e-12
+    # the settled covariance at the typical step: the scale of a start that is not known
+    Ad_h = expm(block[:n + 1, :n + 1] * h)
+    g_h = Ad_h[:n, n]
+    steady = solve_discrete_are(Ad_h[:n, :n].T, C.T, np.outer(g_h, g_h) * INPUT_NOISE ** 2 + np.eye(n) * 1e-12, R)
+    friction = None if Bt is None else (over[:, :n, n + 1:], *coulomb)
+    return dict(varying=True, Phi=Phi, known=known, Q=Q, C=C, friction=friction, states=states, y=y, R=R,
+                N=N, turns=turns, steady=steady, gains={})
+
+
+def _flows(M: np.ndarray, seconds: np.ndarray) -> np.ndarray:
+    """expm(M * s) for each of ``seconds``, each distinct duration once (a logger's clock
+    repeats its steps)."""
+    from scipy.linalg import expm
+
+    distinct, index = np.unique(seconds, return_inverse=True)
+    return expm(M[None] * distinct[:, None, None])[index.reshape(-1)]
+
+
+def _varying_gains(m: dict, diffuse: bool) -> dict:
+    """The Kalman filter's gains K, the smoother's G and the covariances (after each reading,
+    before the next) of a jittered log's model ``m`` (:func:`_setup_varying`), from a start
+    ``diffuse`` or settled; kept in ``m``."""
+    if diffuse in m["gains"]:
+        return m["gains"][diffuse]
+    Phi, Q, C, R, N = m["Phi"], m["Q"], m["C"], m["R"], m["N"]
+    n = Phi.shape[1] if N > 1 else C.shape[1]
+    P = DIFFUSE * m["steady"] if diffuse else m["steady"].copy()
+    K, G = np.zeros((N, n, C.shape[0])), np.zeros((max(N - 1, 0), n, n))
+    afters, predicted = np.zeros((N, n, n)), np.zeros((N, n, n))
+    for k in range(N):
+        predicted[k] = P
+        K[k] = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+        afters[k] = P - K[k] @ C @ P
+        if k < N - 1:
+            P = Phi[k] @ afters[k] @ Phi[k].T + Q[k]
+            P = 0.5 * (P + P.T)
+            G[k] = afters[k] @ Phi[k].T @ np.linalg.inv(P)
+    m["gains"][diffuse] = dict(K=K, G=G, afters=afters, predicted=predicted)
+    return m["gains"][diffuse]
+
+
+def _pass_varying(m: dict, gains: dict, start: np.ndarray, y: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """:func:`_pass` over a jittered log's intervals: the filter forward, the smoother back."""
+    Phi, C, N = m["Phi"], m["C"], m["N"]
+    K, G = gains["K"], gains["G"]
+    predicted, filtered = np.zeros((N, len(start))), np.zeros((N, len(start)))
+    x = start
+    for k in range(N):
+        predicted[k] = x
+        filtered[k] = x + K[k] @ (y[k] - C @ x)
+        if k < N - 1:
+            x = Phi[k] @ filtered[k] + known[k]
+    smoothed = filtered.copy()
+    for k in range(N - 2, -1, -1):
+        smoothed[k] = filtered[k] + G[k] @ (smoothed[k + 1] - predicted[k + 1])
+    return smoothed
+
+
 def start_covariance(experiment, target, values: Mapping[str, float]) -> tuple[list[str], np.ndarray]:
     """(the plant's linearized states: theta0, dtheta0, ..., their covariance) at the first
     sample of a balancing log as its smoother knows them from the whole log (the
@@ -160,6 +289,14 @@ def start_covariance(experiment, target, values: Mapping[str, float]) -> tuple[l
 def _start_covariance(m: dict) -> np.ndarray:
     """The smoothed covariance at the first sample of the log :func:`_setup` gave ``m`` for."""
     from scipy.linalg import solve_discrete_lyapunov
+
+    if m.get("varying"):
+        gains = _varying_gains(m, True)
+        S = gains["afters"][-1]
+        for k in range(m["N"] - 2, -1, -1):
+            G = gains["G"][k]
+            S = gains["afters"][k] + G @ (S - gains["predicted"][k + 1]) @ G.T
+        return 0.5 * (S + S.T)
 
     _, smoothers, afters, followings = _gains(m["Ad"], m["C"], m["Q"], m["R"], m["steady"], m["N"],
                                               covariances=True)
@@ -218,17 +355,24 @@ def _smoothed(experiment, target, values: Mapping[str, float],
     from ``rates`` (rate state -> rad/s) with the settled covariance, or diffuse if none; ``m``:
     :func:`_setup`'s, if already made."""
     m = _setup(experiment, target, values) if m is None else m
-    Ad, B_before, B_now, C, friction, y, N = (m[k] for k in ("Ad", "B_before", "B_now", "C", "friction", "y", "N"))
-    before, now = m["before"], m["now"]
-    gains, smoothers = _gains(Ad, C, m["Q"], m["R"], m["steady"], N, diffuse=not rates)
-    driven = np.outer(before, B_before) + np.outer(now, B_now)   # what the voltage adds, per sample
+    C, friction, y, N = (m[k] for k in ("C", "friction", "y", "N"))
     start = np.linalg.lstsq(C, y[0], rcond=None)[0]   # the angles (and current) read, rates 0
     for name, value in rates.items():
         if name in m["states"]:
             start[m["states"].index(name)] = value
+    if m.get("varying"):
+        driven = m["known"]
+        varying = _varying_gains(m, not rates)
 
-    def smooth(known: np.ndarray) -> np.ndarray:
-        return _pass(Ad, C, gains, smoothers, start, y, known)
+        def smooth(known: np.ndarray) -> np.ndarray:
+            return _pass_varying(m, varying, start, y, known)
+    else:
+        Ad, B_before, B_now, before, now = (m[k] for k in ("Ad", "B_before", "B_now", "before", "now"))
+        gains, smoothers = _gains(Ad, C, m["Q"], m["R"], m["steady"], N, diffuse=not rates)
+        driven = np.outer(before, B_before) + np.outer(now, B_now)   # what the voltage adds, per sample
+
+        def smooth(known: np.ndarray) -> np.ndarray:
+            return _pass(Ad, C, gains, smoothers, start, y, known)
 
     smoothed = smooth(driven)
     if friction is not None:
@@ -245,7 +389,9 @@ def _smoothed(experiment, target, values: Mapping[str, float],
                                       -tc1 * np.tanh(smoothed[:, rates[1]] / w_c)])
             if np.max(np.abs(torque - before_pass)) <= FRICTION_SETTLED * max(tc0, tc1):
                 break
-            smoothed = smooth(driven + torque @ Bt.T)
+            added = (np.einsum("kij,kj->ki", Bt, torque[:N - 1]) if Bt.ndim == 3
+                     else torque @ Bt.T)   # a jittered log's per interval (its last sample's unused)
+            smoothed = smooth(driven + added)
     return m, smoothed
 
 
@@ -327,6 +473,11 @@ def noise_draw(experiment, target, values: Mapping[str, float], seed: int) -> tu
     m = _setup(experiment, target, values)
     C = m["C"]
     readings = np.random.default_rng(seed).standard_normal(m["y"].shape) * np.sqrt(np.diag(m["R"]))
+    if m.get("varying"):
+        start = np.linalg.lstsq(C, readings[0], rcond=None)[0]
+        gains = _varying_gains(m, not stated(experiment))
+        angles = _pass_varying(m, gains, start, readings, np.zeros_like(m["known"])) @ C[:2].T
+        return angles[:, 0], angles[:, 1]
     gains, smoothers = _gains(m["Ad"], C, m["Q"], m["R"], m["steady"], m["N"], diffuse=not stated(experiment))
     start = np.linalg.lstsq(C, readings[0], rcond=None)[0]
     angles = _pass(m["Ad"], C, gains, smoothers, start, readings, np.zeros((m["N"], m["Ad"].shape[0]))) @ C[:2].T

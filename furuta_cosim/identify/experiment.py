@@ -45,6 +45,9 @@ _LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "v
               "late", "compute", "mode")
 _LAW_KEYS = ("K", "F", "period")
 MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
+# a closed-loop log whose clock jitters is replayed at its instants; a step longer than this many
+# of its typical steps is a gap in the log (the controller's commands there are not logged)
+MAX_JITTER_STEPS = 10
 MAX_STALE_SAMPLES = 100  # a reading older than its sample's time (loop.late < 0) by at most this
 # s of the log before a window that a closed-loop replay runs its controller over (its rate
 # filter forgets in milliseconds, a dynamic controller's state in well under this)
@@ -209,6 +212,9 @@ class Experiment:
     late: np.ndarray | None = None
     # inputs whose delay is fitted: kept as logged in ``inputs`` (identify/fit.py)
     delays: Mapping[str, Delayed] = field(default_factory=lambda: Frozen({}))
+    # a closed-loop log whose clock jitters: ``t`` as logged, ``period`` its typical step; the
+    # replay steps the loop over each logged interval (identify/replay.py, estimate.py)
+    jittered: bool = False
 
     @property
     def read_at(self) -> np.ndarray:
@@ -323,6 +329,11 @@ def load_experiment(path: str | Path) -> Experiment:
     t = table[time_column]
     first, last = _window(check, top.get("window"), t, csv, table[LINE])
     check.done()
+    if "resample" in top and "loop" in top:
+        check.fail("resample", "the log has a loop: a closed loop is replayed at the instants it ran (its "
+                               "controller re-run on interpolated angles is not the loop that ran); leave "
+                               "resample out, it is for open-loop logs")
+        check.done()
     if "resample" in top:
         table, first, last = _resampled(check, top, table, time_column, first, last, csv)
         t = table[time_column]
@@ -336,7 +347,8 @@ def load_experiment(path: str | Path) -> Experiment:
     if len(t) < 2:
         check.fail("window", f"holds {len(t)} sample(s) of {csv.name}: at least 2 are needed")
         check.done()
-    period = _uniform(check, t, csv, table[LINE][keep])
+    period, jittered = _clock(check, t, csv, table[LINE][keep], closed="loop" in top)
+    check.done()
     delays: dict = {}
     if "loop" in top and isinstance(top.get("inputs"), dict):
         for key, entry in top["inputs"].items():
@@ -351,7 +363,8 @@ def load_experiment(path: str | Path) -> Experiment:
     # row: a log's own first row is where its logger knew the state (a rig run starts at rest)
     start, start_from = _start(check, top.get("start", {}), outputs, t, cut=first > 0)
     parameters = check.numbers(top.get("parameters", {}), "parameters")
-    loop = _loop(check, top, path, table, columns, keep, period, csv) if "loop" in top else None
+    times = np.asarray(table[time_column], dtype=float) if jittered else None
+    loop = _loop(check, top, path, table, columns, keep, period, csv, times) if "loop" in top else None
     segments = 0.0
     if "segments" in top:
         segments = check.number(top["segments"], "segments", positive=True, maximum=1e6)
@@ -367,7 +380,7 @@ def load_experiment(path: str | Path) -> Experiment:
                                                     "sets too: give it in one place")
     check.done()
     if loop is not None and first > 0:   # the rows before the window, from the same columns
-        loop = replace(loop, lead_in=_lead_in(check, top, table, columns, first, period))
+        loop = replace(loop, lead_in=_lead_in(check, top, table, columns, first, period, jittered))
     units = {}
     for key in ("inputs", "outputs"):
         section = top.get(key) if isinstance(top.get(key), dict) else {}
@@ -379,13 +392,15 @@ def load_experiment(path: str | Path) -> Experiment:
     digest = hashlib.sha256(csv.read_bytes()).hexdigest()
     return Experiment(name, description, path, csv, digest, t, period, Frozen(inputs),
                       Frozen(outputs), Frozen(start), parameters, Frozen(units), loop, float(segments or 0.0),
-                      start_from=Frozen(start_from), late=late, delays=Frozen(delays),
+                      start_from=Frozen(start_from), late=late, delays=Frozen(delays), jittered=jittered,
                       from_data=frozenset(n for n, v in (top.get("start") or {}).items() if v == "data"))
 
 
-def _lead_in(check: Checker, top: dict, table, columns, first: int, period: float) -> LeadIn | None:
+def _lead_in(check: Checker, top: dict, table, columns, first: int, period: float,
+             jittered: bool = False) -> LeadIn | None:
     """The ``LEAD_IN`` s of rows before the window (none before a row whose numbers are missing
-    or a step that is not the period), read as the window's own are; None without both angles.
+    or a step that is not the period: on a clock that jitters, one that does not increase or
+    is a gap), read as the window's own are; None without both angles.
     The entries were checked on the window, so reading them again cannot fail."""
     outputs = top["outputs"]
     if not all(isinstance(outputs.get(n), dict) for n in ("theta0", "theta1")):
@@ -408,7 +423,9 @@ def _lead_in(check: Checker, top: dict, table, columns, first: int, period: floa
     usable = np.all(np.isfinite(angles), axis=1) & np.isfinite(current) & np.isfinite(reference)
     if command is not None:
         usable &= np.isfinite(command)
-    usable &= np.abs(np.diff(t) - period) <= UNIFORM_TOLERANCE * period   # the step to the next row
+    steps = np.diff(t)   # the step to the next row
+    usable &= (((steps > 0) & (steps <= MAX_JITTER_STEPS * period)) if jittered
+               else np.abs(steps - period) <= UNIFORM_TOLERANCE * period)
     start = int(len(usable) - np.argmin(usable[::-1])) if not usable.all() else 0
     if start >= rows:
         return None
@@ -557,7 +574,8 @@ def _timing_column(check: Checker, entry: dict, key: str, table, columns, keep, 
     return values
 
 
-def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: float, csv: Path) -> Loop | None:
+def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: float, csv: Path,
+          times: np.ndarray | None = None) -> Loop | None:
     """``loop:``: the controller file (beside the experiment file) or a law (state feedback, or
     in the logger's own words: identify/laws.py), the reference and feedforward columns, the
     rates' filter, the voltage limit, the encoders' counts, the delay (the keys ``rig run``
@@ -627,7 +645,7 @@ def _loop(check: Checker, top: dict, path: Path, table, columns, keep, period: f
         command = _conversion(signal)[1:] if isinstance(signal, dict) else (1.0, 0.0)
         linear = read_law(check, entry["law"], period, table, columns, keep,
                           {n: _conversion(e) for n, e in outputs.items() if isinstance(e, dict)}, command,
-                          voltage, feedforward, csv.name, table[LINE])
+                          voltage, feedforward, csv.name, table[LINE], times=times)
         check.done()
         digest = hashlib.sha256(repr((linear.A, linear.B, linear.C, linear.D, linear.sources)).encode()).hexdigest()
     if law is None and controller is None and linear is None:
@@ -856,6 +874,29 @@ def _window(check: Checker, value, t: np.ndarray, csv: Path, lines: np.ndarray) 
         check.fail("window", f"[{lo:g}, {hi:g}] s holds {max(last - first, 0)} sample(s) of "
                              f"{csv.name} (its time runs from {t[0]:g} to {t[-1]:g} s)")
     return first, last
+
+
+def _clock(check: Checker, t: np.ndarray, csv: Path, lines: np.ndarray, closed: bool) -> tuple[float, bool]:
+    """(the period, whether the clock jitters) of the window's times ``t``: uniform, or, for a
+    closed-loop log (replayed at its instants), increasing with no step longer than
+    MAX_JITTER_STEPS typical ones (its period the typical step, the median)."""
+    steps = np.diff(t)
+    typical = float(np.median(steps))
+    if not closed or not np.any(np.abs(steps - typical) > UNIFORM_TOLERANCE * typical):
+        return _uniform(check, t, csv, lines), False
+    bad = np.nonzero(~(steps > 0))[0]
+    if len(bad):
+        k = int(bad[0])
+        check.fail("time", f"{csv.name}: line {lines[k + 1]}: {t[k + 1]:g} s is not after the row before "
+                           f"({t[k]:g} s): a loop's samples follow one another")
+        return typical, True
+    long = np.nonzero(steps > MAX_JITTER_STEPS * typical)[0]
+    if len(long):
+        k = int(long[0])
+        check.fail("time", f"{csv.name}: line {lines[k + 1]}: {steps[k]:g} s after the row before, more than "
+                           f"{MAX_JITTER_STEPS} typical steps ({typical:g} s): a gap in the log, where the loop's "
+                           "commands are not logged; give a window that leaves it out (window: [start, end], s)")
+    return typical, True
 
 
 def _uniform(check: Checker, t: np.ndarray, csv: Path, lines: np.ndarray) -> float:

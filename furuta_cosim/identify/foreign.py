@@ -7,7 +7,9 @@ Each writes a CSV and its experiment file into a folder and returns the experime
 - :func:`pd_log`: a QUBE balancing under a lab's PD at 500 Hz, acting on the errors to two
   references (the arm's square wave, the pendulum's 0) with derivatives filtered at 50 rad/s
   by backward Euler; the arm logged in degrees, the pendulum with the opposite sign, the
-  controller's own output logged, and a footer row of NaN (the last state, with no action).
+  controller's own output logged, and a footer row of NaN (the last state, with no action);
+  ``jitter``: the loop runs on a ROS 2 timer's clock (1.5 to 4.8 ms apart), its derivative over
+  the time since its last run, and logs each run.
 - :func:`chirp_log`: a hanging QUBE driven open loop by a chirp whose voltage reaches the
   motor ``delay`` seconds late; ``jitter`` logs it as a ROS bag converted by PlotJuggler does
   (a clock of 1.5 to 4.8 ms steps, the command and the angles on interleaved rows).
@@ -61,7 +63,7 @@ def _write(folder: Path, name: str, header: list[str], rows: np.ndarray, experim
 
 def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float = 6.0, seed: int = 0,
            amplitude: float = 10.0, square: float = 3.0, name: str = "pd", delay: float = 0.0,
-           free_delay: tuple | None = None, truth: dict | None = None) -> Path:
+           free_delay: tuple | None = None, truth: dict | None = None, jitter: bool = False) -> Path:
     """Write a balancing log under a lab's errors-PD (the module's first kind) and return its
     experiment file, which states the law in the lab's words and names its logged output.
 
@@ -89,6 +91,9 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
         The experiment fits the loop's delay within these bounds (s); else it states ``delay``.
     truth : dict, optional
         Plant parameters that differ from the plant file's.
+    jitter : bool
+        The loop runs at instants 1.5 to 4.75 ms apart (on a 0.25 ms grid, 2 ms the most
+        common), its derivatives over the time since the run before (the first over 2 ms).
 
     Returns
     -------
@@ -97,11 +102,20 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
     """
     folder = Path(folder)
     off = 0.01 + 0.02 * np.random.default_rng(seed).random()
-    n = int(round(duration / PERIOD)) + 1
-    t = np.arange(n) * PERIOD
+    if jitter:
+        rng, fine_steps, t = np.random.default_rng([seed, 2]), [0], [0.0]
+        while True:
+            fine_steps.append(fine_steps[-1] + int(rng.choice([6, 7, 8, 8, 8, 8, 9, 10, 19])))
+            if fine_steps[-1] * 0.00025 > duration + 1e-12:
+                break
+            t.append(fine_steps[-1] * 0.00025)
+        t = np.array(t)
+        n = len(t)
+    else:
+        n = int(round(duration / PERIOD)) + 1
+        t = np.arange(n) * PERIOD
     arm_ref = np.where(np.floor(t / (square / 2.0)) % 2 == 0, 0.0, amplitude)
     pend_ref = np.zeros(n)
-    a = 1.0 / (1.0 + CUTOFF * PERIOD)   # backward Euler of s w / (s + w): d = a (d + w (e - e_prev))
     last = {"arm": 0.0, "pendulum": 0.0}
     rate = {"arm": 0.0, "pendulum": 0.0}
     rows = []
@@ -123,13 +137,15 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
             arm = math.degrees(_counted(y[0], 0.0))          # the lab logs degrees
             pendulum = -_counted(y[1], math.pi)              # and the pendulum the other way
             u = 0.0
+            # backward Euler of s w / (s + w) over the time since the last run: d = a (d + w (e - e_prev))
+            a = 1.0 / (1.0 + CUTOFF * (t[k] - t[k - 1] if k and jitter else PERIOD))
             for key, error in (("arm", arm_ref[k] - arm), ("pendulum", pend_ref[k] - pendulum)):
                 rate[key] = a * (rate[key] + CUTOFF * (error - last[key]))
                 last[key] = error
                 kp, kd = PD_GAINS[key]
                 u += kp * error + kd * rate[key]
             rows.append((t[k], arm_ref[k], pend_ref[k], arm, pendulum, y[2] + noise[k], u))
-            if k < n - 1 and not delay:
+            if k < n - 1 and not delay and not jitter:
                 y = session.step([u], PERIOD)
             elif k < n - 1:
                 pending.append((t[k] + delay, u))
@@ -143,7 +159,8 @@ def pd_log(folder: str | Path, *, plant: str = "qube-servo-3", duration: float =
                 y = held(session, t[k + 1] - now)
     quantum = 360.0 / COUNTS
     experiment = {
-        "description": "a QUBE balancing under its lab's PD at 500 Hz (synthetic)",
+        "description": "a QUBE balancing under its lab's PD at 500 Hz" + (", on a clock that jitters" if jitter else "")
+                       + " (synthetic)",
         "data": f"{name}.csv", "columns": ["time", "arm_ref", "pend_ref", "arm", "pend", "current", "u"],
         "time": "time", "window": [0.0, float(t[-1])],   # the footer row is outside it
         "inputs": {"V": {"column": "u", "unit": "V"}},

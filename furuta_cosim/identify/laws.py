@@ -27,6 +27,13 @@ as its column holds it, the command as the column of the input ``V`` holds it. T
 
 The state-feedback form (``K``, ``F``) stays in experiment.py; python-control discretizes
 the derivative and integral terms (``sample_system``).
+
+A log whose clock jitters (a ROS 2 controller: 2 ms nominal, 1.5 to 4.8 ms apart) ran its
+terms over the intervals that actually passed, as ros2_control hands a controller the time
+since its last update: there each term is stepped over the logged interval ending at its
+sample, its state kept in coordinates that mean the same at every interval (the filtered
+signal and the last input: :func:`_block`), so a change of interval does not move it. On a
+uniform clock that form and python-control's agree to rounding (tests/test_laws.py).
 """
 
 from __future__ import annotations
@@ -70,6 +77,14 @@ class LinearLaw:
     words: str
     x0: np.ndarray | None = None
     logged: np.ndarray | None = None   # the window's sources as the log holds them (rows)
+    # a terms law on a clock that jitters: its blocks (source, gain, kind, method, cutoff), stepped
+    # over ``dt`` (s: the interval ending at each sample of the window); None: at the period
+    varying: tuple | None = None
+    dt: np.ndarray | None = None
+
+    def matrices(self, dt: float) -> tuple:
+        """(A, B, C, D) of a varying law over an interval of ``dt`` s."""
+        return _assembled_at(self.varying, len(self.sources), dt)
 
     def stepper(self):
         """A function (k, {output: SI value}) -> the command in volts, from ``x0``; one per run."""
@@ -77,13 +92,19 @@ class LinearLaw:
         factor, offset = self.command
         A, B, C, D = self.A, self.B, self.C[0], self.D[0]
         lookup = [(s, conversion) for s, conversion in zip(self.sources, self.measured)]
+        dt = self.dt if self.varying is not None else None
 
         def step(k: int, seen: Mapping[str, float]) -> float:
             nonlocal x
             v = np.array([seen[s] / c[0] - c[1] if c is not None else self.columns[s][k]
                           for s, c in lookup])
-            u = float(C @ x + D @ v)
-            x = A @ x + B @ v
+            if dt is None:
+                u = float(C @ x + D @ v)
+                x = A @ x + B @ v
+            else:
+                a, b, c, d = self.matrices(float(dt[k]))
+                u = float(c[0] @ x + d[0] @ v)
+                x = a @ x + b @ v
             return (u + offset) * factor
         return step
 
@@ -93,17 +114,23 @@ class LinearLaw:
         from dataclasses import replace
 
         first = keep.start or 0
-        x0 = self.x0 if first == 0 or self.logged is None else self.respond(self.logged[:first], self.x0)[1]
+        dt = None if self.dt is None else self.dt[:first]
+        x0 = self.x0 if first == 0 or self.logged is None else self.respond(self.logged[:first], self.x0, dt)[1]
         return replace(self, columns=Frozen({k: v[keep] for k, v in self.columns.items()}), x0=x0,
-                       logged=None if self.logged is None else self.logged[keep])
+                       logged=None if self.logged is None else self.logged[keep],
+                       dt=None if self.dt is None else self.dt[keep])
 
-    def respond(self, v: np.ndarray, x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def respond(self, v: np.ndarray, x0: np.ndarray | None = None,
+                dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(the command in the log's units, the final state) over rows of ``v`` (sources in
-        the log's units)."""
+        the log's units); ``dt``: each row's interval (s), for a varying law."""
         x = np.zeros(self.A.shape[0]) if x0 is None else x0.copy()
         u = np.empty(len(v))
         A, B, C, D = self.A, self.B, self.C[0], self.D[0]
         for k, row in enumerate(v):
+            if self.varying is not None and dt is not None:
+                A, B, C, D = self.matrices(float(dt[k]))
+                C, D = C[0], D[0]
             u[k] = C @ x + D @ row
             x = A @ x + B @ row
         return u, x
@@ -116,12 +143,15 @@ def is_linear(entry) -> bool:
 
 def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
              outputs: Mapping[str, tuple], command: tuple, voltage: float | None,
-             feedforward: np.ndarray | None, csv_name: str, lines) -> LinearLaw | None:
+             feedforward: np.ndarray | None, csv_name: str, lines,
+             times: np.ndarray | None = None) -> LinearLaw | None:
     """``loop.law`` in its terms or state-space form, checked, with its state at the
     window's start (run over the log's rows before the window) and, when it names
     ``output``, checked against that column over the window. ``outputs``: the experiment's
     measured outputs as (column, factor, offset), SI = (column + offset) * factor;
-    ``command``: the same (factor, offset) for the command."""
+    ``command``: the same (factor, offset) for the command; ``times``: the log's time column
+    where its clock jitters (a terms law then steps over each logged interval; the first row's
+    is the nominal ``period``), else None."""
     state_space = "terms" not in entry
     keys = STATE_SPACE_KEYS if state_space else TERMS_KEYS
     entry = check.mapping(entry, "loop.law", required=("A", "B", "C", "D", "inputs") if state_space
@@ -133,7 +163,13 @@ def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
              else _terms(check, entry, period, conversions, columns))
     if built is None:
         return None
-    A, B, C, D, sources, constants, words = built
+    A, B, C, D, sources, constants, words, recipe = built
+    dt_all = None
+    if times is not None and recipe is not None:   # each row's interval, the first's the period
+        dt_all = np.concatenate([[period], np.diff(np.asarray(times, dtype=float))])
+        A, B, C, D = _assembled_at(recipe, len(sources), period)
+    else:
+        recipe = None
     if A.shape[0] > MAX_ORDER:
         check.fail("loop.law.A", f"{A.shape[0]} states: at most {MAX_ORDER}")
         return None
@@ -147,7 +183,8 @@ def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
             whole[s] = table[s]
     law = LinearLaw(A, B, C, D, tuple(sources), tuple(conversions.get(s) for s in sources),
                     Frozen({s: whole[s][keep].copy() for s in sources if s not in conversions}),
-                    command, words, logged=np.column_stack([whole[s][keep] for s in sources]))
+                    command, words, logged=np.column_stack([whole[s][keep] for s in sources]),
+                    varying=recipe, dt=None if dt_all is None else dt_all[keep].copy())
     # the state the law reached on the log's rows before the window (from the last row that
     # is not a number, a header's or a gap's): its filters do not restart where the window cuts
     first = keep.start or 0
@@ -155,7 +192,8 @@ def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
         rows = np.column_stack([whole[s][:first] for s in sources])
         finite = np.all(np.isfinite(rows), axis=1)
         begin = int(len(finite) - np.argmin(finite[::-1])) if not finite.all() else 0
-        _, x0 = law.respond(rows[begin:])
+        steps = None if dt_all is None else np.concatenate([[period], dt_all[begin + 1:first]])
+        _, x0 = law.respond(rows[begin:], dt=steps)
         from dataclasses import replace
 
         law = replace(law, x0=x0)
@@ -192,7 +230,7 @@ def _terms(check: Checker, entry: dict, period: float, conversions, columns):
     sign = 1.0 if error == ERRORS[0] else -1.0   # the measurement's sign in the error is -sign
     dz = _derivative(cutoff, method, period)
     iz = control.sample_system(control.tf([1.0], [1.0, 0.0]), period, method=METHODS[i_method])
-    blocks, sources, constants, words = [], [], {}, []
+    blocks, sources, constants, words, recipe = [], [], {}, [], []
     for name, term in terms.items():
         key = f"loop.law.terms.{name}"
         term = check.mapping(term, key, optional=_TERM_KEYS)
@@ -229,19 +267,24 @@ def _terms(check: Checker, entry: dict, period: float, conversions, columns):
                 sources.append(source)
         r, y = sources.index(ref), sources.index(name)
         # u += kp e + ki I(e) + kd D(e or the measurement's part of e), e = sign (r - y)
-        for gain, system, on_reference in ((gains["kp"], None, True), (gains["ki"], iz, True),
-                                           (gains["kd"], dz, on == "error")):
+        for gain, system, kind, on_reference in ((gains["kp"], None, None, True), (gains["ki"], iz, "i", True),
+                                                 (gains["kd"], dz, "d", on == "error")):
             if gain:
                 blocks.append((y, -sign * gain, system))
+                recipe.append((y, -sign * gain, kind))
                 if on_reference:
                     blocks.append((r, sign * gain, system))
+                    recipe.append((r, sign * gain, kind))
         words.append(f"{name}: kp {gains['kp']:g}, ki {gains['ki']:g}, kd {gains['kd']:g} on "
                      f"{reference if isinstance(reference, str) else f'{reference:g}'}")
     check.done()
     A, B, C, D = _assembled(blocks, len(sources))
     what = "derivative on the " + on + (f", filtered at {cutoff:g} rad/s" if cutoff else ", unfiltered") \
         + f", {method}"
-    return A, B, C, D, sources, constants, f"the PID law ({'; '.join(words)}; {what})"
+    methods = {"d": (method, cutoff), "i": (i_method, None)}
+    recipe = tuple((source, gain, kind) + (methods[kind] if kind else (None, None))
+                   for source, gain, kind in recipe)
+    return A, B, C, D, sources, constants, f"the PID law ({'; '.join(words)}; {what})", recipe
 
 
 def _derivative(cutoff: float | None, method: str, period: float):
@@ -285,6 +328,66 @@ def _assembled(blocks, inputs: int):
     return A, B, C, D
 
 
+def _block(kind: str, method: str, cutoff: float | None, dt: float) -> tuple:
+    """(a, b, c, d) of one derivative (``kind`` "d", filtered at ``cutoff`` rad/s or not) or
+    integral ("i") discretized by ``method`` over an interval of ``dt`` s, in coordinates that
+    mean the same at every interval: a filtered derivative keeps the low-passed input f (the
+    derivative is cutoff (v - f)), the others the last input (and the last output where the
+    method needs it), so that a law can change its interval from one sample to the next."""
+    if kind == "d" and cutoff is not None:
+        w = cutoff
+        if method == "backward":
+            g = 1.0 / (1.0 + w * dt)
+            return np.array([[g]]), np.array([w * dt * g]), np.array([-w * g]), w * g
+        if method == "forward":   # state (f, v) of the sample before
+            return (np.array([[1.0 - w * dt, w * dt], [0.0, 0.0]]), np.array([0.0, 1.0]),
+                    np.array([-w * (1.0 - w * dt), -w * w * dt]), w)
+        c = 0.5 * w * dt          # bilinear
+        return (np.array([[(1.0 - c) / (1.0 + c), c / (1.0 + c)], [0.0, 0.0]]), np.array([c / (1.0 + c), 1.0]),
+                np.array([-w * (1.0 - c) / (1.0 + c), -w * c / (1.0 + c)]), w / (1.0 + c))
+    if kind == "d":
+        if method == "backward":  # (v - v_before) / dt
+            return np.array([[0.0]]), np.array([1.0]), np.array([-1.0 / dt]), 1.0 / dt
+        # bilinear: d = -d_before + 2 (v - v_before) / dt, state (d, v) of the sample before
+        return (np.array([[-1.0, -2.0 / dt], [0.0, 0.0]]), np.array([2.0 / dt, 1.0]),
+                np.array([-1.0, -2.0 / dt]), 2.0 / dt)
+    if method == "backward":      # I += dt v
+        return np.array([[1.0]]), np.array([dt]), np.array([1.0]), dt
+    if method == "forward":       # I += dt v_before, state (I, v) of the sample before
+        return np.array([[1.0, dt], [0.0, 0.0]]), np.array([0.0, 1.0]), np.array([1.0, dt]), 0.0
+    return (np.array([[1.0, 0.5 * dt], [0.0, 0.0]]), np.array([0.5 * dt, 1.0]),   # bilinear
+            np.array([1.0, 0.5 * dt]), 0.5 * dt)
+
+
+_AT: dict = {}   # (recipe, inputs, dt) -> matrices: a jittered log's intervals repeat
+
+
+def _assembled_at(recipe: tuple, inputs: int, dt: float) -> tuple:
+    """(A, B, C, D) of a terms law's blocks (source, gain, kind, method, cutoff) over ``dt``."""
+    key = (recipe, inputs, dt)
+    if key in _AT:
+        return _AT[key]
+    parts = [(source, gain, *_block(kind, method, cutoff, dt)) for source, gain, kind, method, cutoff in recipe
+             if kind is not None]
+    n = sum(len(p[3]) for p in parts)
+    A, B, C, D = np.zeros((n, n)), np.zeros((n, inputs)), np.zeros((1, n)), np.zeros((1, inputs))
+    for source, gain, kind, _, _ in recipe:
+        if kind is None:
+            D[0, source] += gain
+    row = 0
+    for source, gain, a, b, c, d in parts:
+        m = len(b)
+        A[row:row + m, row:row + m] = a
+        B[row:row + m, source] = b
+        C[0, row:row + m] = gain * c
+        D[0, source] += gain * d
+        row += m
+    if len(_AT) > 10000:
+        _AT.clear()
+    _AT[key] = (A, B, C, D)
+    return _AT[key]
+
+
 def _state_space(check: Checker, entry: dict, conversions, columns):
     """The general form: (A, B, C, D, sources, {}, words)."""
     sources = check.names(entry["inputs"], "loop.law.inputs")
@@ -307,7 +410,8 @@ def _state_space(check: Checker, entry: dict, conversions, columns):
     A = np.array(A, dtype=float).reshape(n, n)
     B = np.array(B, dtype=float).reshape(n, m)
     C = np.array(C, dtype=float).reshape(1, n)
-    return A, B, C, np.array(D, dtype=float), list(sources), {}, f"the law of {n} states on {', '.join(sources)}"
+    return (A, B, C, np.array(D, dtype=float), list(sources), {}, f"the law of {n} states on {', '.join(sources)}",
+            None)
 
 
 def _agrees(check: Checker, law: LinearLaw, rows: np.ndarray, output: np.ndarray, name: str,
@@ -328,7 +432,7 @@ def _agrees(check: Checker, law: LinearLaw, rows: np.ndarray, output: np.ndarray
                                       f"{excerpt(str(output[bad[0]]))} inside the window: the law's output "
                                       "must be a number at every sample it is checked against")
         return
-    u, _ = law.respond(rows, law.x0)
+    u, _ = law.respond(rows, law.x0, law.dt)
     own = (u + offset) * factor
     logged = (output + offset) * factor
     span = float(np.max(logged) - np.min(logged)) or max(float(np.max(np.abs(logged))), 1e-12)

@@ -524,9 +524,9 @@ def closed_loop(session, target: Target, experiment: Experiment,
             return volts[j]
         return float(logged[j]) if -j <= len(logged) else 0.0
     # a log that records when each sample was read and its command written (a rig's `late` and
-    # `compute`): the plant is stepped to each reading, its voltage switched at each write plus
-    # the delay, wherever those fall
-    timed = experiment.late is not None or loop.compute is not None
+    # `compute`), or whose clock jitters: the plant is stepped to each reading, its voltage
+    # switched at each write plus the delay, wherever those fall
+    timed = experiment.late is not None or loop.compute is not None or experiment.jittered
     read = experiment.read_at
     arrive = read + (loop.compute if loop.compute is not None else 0.0) + delay
     pending: list[tuple[float, float]] = []
