@@ -604,7 +604,8 @@ def cmd_replay(args) -> int:
         if mode is not None:
             said = "; ".join(f"{'caught' if m == 1.0 else 'fell'} at {t:.3f} s" for t, m in mode["logged"]) or "no switch"
             again = "; ".join(f"{'caught' if m == 1.0 else 'fell'} at {t:.3f} s" for t, m in mode["replayed"]) or "no switch"
-            print(f"  {name:14s} mode     the log: {said}; the replay: "
+            whose = "the replay (in the logged mode), its own rule" if mode.get("followed") else "the replay"
+            print(f"  {name:14s} mode     the log: {said}; {whose}: "
                   + ("the same" if mode["agree"] else f"{again} (apart from {mode['first_apart']:.3f} s)"))
     if args.output:
         print(f"figures and replay.json in {args.output}")

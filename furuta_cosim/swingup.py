@@ -133,8 +133,18 @@ class SwingUpRuntime:
         self.balance.reset()
         self.mode = SWINGUP
         self.switches: list[tuple[int, float]] = []  # (sample, new mode)
+        # following a logged mode (:meth:`follow`): (sample, the mode its own rule gave) at each
+        # sample where the rule and the logged mode disagree
+        self.own: list[tuple[int, float]] = []
+        self._forced: float | None = None
         self._k = 0
         self._held = 0.0  # with delay 1: the command of the sample before
+
+    def follow(self, mode: float) -> None:
+        """Run the next sample in ``mode`` whatever its own rule says (a replay following the
+        mode a log recorded); where the rule would have made another mode, :attr:`own` keeps
+        it."""
+        self._forced = float(mode)
 
     def state(self) -> list[float]:
         return self.balance.state() + [self.mode]
@@ -148,13 +158,21 @@ class SwingUpRuntime:
     def _control(self, x, rbar: float) -> float:
         s = self.settings
         theta1 = wrap(x[2])
+        rule = self.mode
         if self.mode == SWINGUP and abs(theta1) < s.catch_angle and abs(x[3]) < s.catch_rate:
-            self.mode = BALANCE
-            self.balance.reset()
-            self.switches.append((self._k, BALANCE))
+            rule = BALANCE
         elif self.mode == BALANCE and abs(theta1) > s.fall_angle:
-            self.mode = SWINGUP
-            self.switches.append((self._k, SWINGUP))
+            rule = SWINGUP
+        new = rule
+        if self._forced is not None:
+            new, self._forced = self._forced, None
+            if rule != new:
+                self.own.append((self._k, rule))
+        if new != self.mode:
+            if new == BALANCE:
+                self.balance.reset()
+            self.mode = new
+            self.switches.append((self._k, new))
         self._k += 1
         if self.mode == BALANCE:
             return self.balance.control([x[0], x[1], theta1] + list(x[3:]), rbar)

@@ -288,3 +288,36 @@ def test_a_mode_the_replay_does_not_switch_where_the_log_did_is_named(run, tmp_p
     assert not found["agree"]
     assert found["logged"][0][0] == pytest.approx(found["replayed"][0][0] + 10 * 0.002, abs=1e-9)
     assert found["first_apart"] == pytest.approx(found["replayed"][0][0], abs=1e-9)
+
+
+def test_the_replay_runs_in_the_logged_mode_and_keeps_its_own_rule_beside_it(run, tmp_path):
+    # the log's catch moved 10 samples later: the replay's controller swings up until the log
+    # says it caught (its switches are the log's, to the sample), and its own rule, which
+    # catches where the run did, is kept as what it would have done
+    import shutil
+
+    from furuta_cosim.identify.experiment import load_experiment
+    from furuta_cosim.identify.replay import closed_loop, open_session, target_for
+
+    folder = tmp_path / "moved"
+    shutil.copytree(run, folder)
+    lines = (folder / "log.csv").read_text().splitlines()
+    k = lines[0].split(",").index("mode")
+    rows = [line.split(",") for line in lines[1:]]
+    modes = [row[k] for row in rows]
+    for row, value in zip(rows, ["0.0"] * 10 + modes[:-10]):
+        row[k] = value
+    (folder / "log.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    target = target_for(plant="qube-servo-3")
+    logged = load_experiment(folder / "experiment.yaml")
+    original = load_experiment(run / "experiment.yaml")
+    caught = int(np.argmax(np.asarray(original.loop.mode) == 1.0))
+    with open_session(target) as session:
+        record: dict = {}
+        _, volts = closed_loop(session, target, logged, record=record)
+        _, before = closed_loop(session, target, original)
+    assert record["switches"][0] == (caught + 10, 1.0)
+    assert record["own"][:10] == [(caught + j, 1.0) for j in range(10)]
+    # until the caught sample the same commands; from it the moved replay is still swinging up
+    np.testing.assert_allclose(volts[:caught], before[:caught], rtol=0, atol=1e-12)
+    assert np.max(np.abs(volts[caught:caught + 10] - before[caught:caught + 10])) > 0.1

@@ -406,7 +406,9 @@ def _commander(loop, experiment: Experiment):
     before the feedforward) at sample k of the window, its state at the window's start: the
     loop's own law (its state from the rows before the window: identify/laws.py), or its
     controller with the rates by the loop's filter, both run first over the rows before a
-    window that cuts the log mid-run (``loop.lead_in``), as they ran on the rig."""
+    window that cuts the log mid-run (``loop.lead_in``), as they ran on the rig. A swing-up
+    whose log records its mode (``loop.mode``) runs each sample of the window in the logged
+    mode; where its own rule would have made another, ``command.own()`` says so."""
     if loop.linear is not None:
         step = loop.linear.stepper()
 
@@ -435,18 +437,29 @@ def _commander(loop, experiment: Experiment):
 
     warmed = []   # the control calls of the lead-in, before the window's first sample
 
+    follow = loop.mode if loop.mode is not None and hasattr(runtime, "follow") else None
+
     def command(k, a0, a1, current):
         if k == 0 and lead is not None:
             warm(a0, a1)
             warmed.append(len(lead.current))
         r0, r1 = rates((a0, a1))
+        if follow is not None:
+            runtime.follow(float(follow[k]))
         return float(runtime.control([a0, r0, a1, r1, current], float(reference[k])))
+
+    def window(found):
+        skip = warmed[0] if warmed else 0
+        return [(k - skip, m) for k, m in found if k >= skip]
 
     def switches():
         """A swing-up's mode switches in the window: (sample, new mode)."""
-        skip = warmed[0] if warmed else 0
-        return [(k - skip, m) for k, m in getattr(runtime, "switches", []) if k >= skip]
-    command.switches = switches
+        return window(getattr(runtime, "switches", []))
+
+    def own():
+        """Following the logged mode: (sample, the mode its own rule gave) where they differ."""
+        return window(getattr(runtime, "own", [])) if follow is not None else None
+    command.switches, command.own = switches, own
     return command
 
 
@@ -576,6 +589,7 @@ def closed_loop(session, target: Target, experiment: Experiment,
         raise SimulationFailed(str(error)) from None
     if record is not None:   # a swing-up's switches (sample of the window, new mode), as replayed
         record["switches"] = command.switches()
+        record["own"] = command.own()   # following the logged mode: where its own rule differed
     if not np.all(np.isfinite(raw)) or not np.all(np.isfinite(volts)):
         k = int(np.argmax(~(np.all(np.isfinite(raw), axis=1) & np.isfinite(volts))))
         raise SimulationFailed(f"{target.label}: the closed loop is not finite at t = {experiment.t[k]:g} s")

@@ -96,7 +96,7 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
                      "loop": "closed" if experiment.loop is not None else "open",
                      "outputs": compare(experiment, simulated)}
             if experiment.loop is not None and experiment.loop.mode is not None:
-                entry["mode"] = modes(experiment, record.get("switches", []))
+                entry["mode"] = modes(experiment, record.get("switches", []), record.get("own"))
             try:
                 for output_name, rms in chatter(session, target, experiment, simulated, delays).items():
                     entry["outputs"][output_name]["chatter"] = rms
@@ -117,19 +117,31 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
     return document
 
 
-def modes(experiment, replayed: list) -> dict:
+def modes(experiment, replayed: list, own: list | None = None) -> dict:
     """The controller's mode switches as the log has them (its ``loop.mode`` column) and as the
     replay's controller made them: each as [time (s), new mode]; ``agree`` when they are the
-    same switches at the same samples, else ``first_apart``, the time of the first that is not."""
+    same switches at the same samples, else ``first_apart``, the time of the first that is not.
+    ``own``: the replay followed the logged mode (``followed``), and these are the samples where
+    the controller's own rule gave another mode (sample, its mode); its switches (``replayed``)
+    are then the rule's: at the first sample of each such stretch, the rule's mode, and where a
+    stretch ends before the log switches back, the logged mode again."""
     logged_mode = np.asarray(experiment.loop.mode, dtype=float)
     changes = np.nonzero(np.diff(logged_mode) != 0)[0] + 1
     logged = [(int(k), float(logged_mode[k])) for k in changes]
-    ours = [(int(k), float(m)) for k, m in replayed if 0 <= k < experiment.samples]
     t = experiment.t
+    if own is not None:   # the rule's mode at each sample: the logged one where it agreed
+        rule = logged_mode.copy()
+        for k, m in own:
+            if 0 <= k < len(rule):
+                rule[k] = m
+        changed = np.nonzero(np.diff(rule) != 0)[0] + 1
+        replayed = [(int(k), float(rule[k])) for k in changed]
+    ours = [(int(k), float(m)) for k, m in replayed if 0 <= k < experiment.samples]
     apart = next((min(a[0], b[0]) for a, b in zip(logged, ours) if a != b), None)
     if apart is None and len(logged) != len(ours):
         apart = (logged + ours)[min(len(logged), len(ours))][0]
     return {"logged": [[float(t[k]), m] for k, m in logged], "replayed": [[float(t[k]), m] for k, m in ours],
+            "followed": own is not None,
             "agree": apart is None, "first_apart": None if apart is None else float(t[apart])}
 
 
