@@ -16,9 +16,14 @@
   gave 3.99 ms for 5 on ten seeds of ten with intervals 0.04 ms wide); then the same fit with
   the delay stated at its truth. Per seed: whether each 95 % interval (sandwich and reach;
   profiles off) holds the truth.
+- jittered: the same lab's PD, ``--delay`` s late inside its loop, run at instants 1.5 to 4.75
+  ms apart (a ROS 2 timer: its derivatives over the time since its last run), replayed at its
+  instants; R_a and M_f freed 20 % off, the delay stated, beside the same seed's loop on a
+  uniform 2 ms clock. Per seed: each fitted value and its interval, how far from the uniform
+  fit.
 - wrong: a balancing log of lqr-qube stated with lqr-paper: identify's refusal, its time.
 
-    python tools/bench_loop.py [--seeds 10] [--parts late,paced,loop-delay,wrong] [--late 0.003]
+    python tools/bench_loop.py [--seeds 10] [--parts late,paced,loop-delay,jittered,wrong] [--late 0.003]
                                [--delay 0.005] [--hogs 2]
 """
 
@@ -160,6 +165,46 @@ def loop_delay(seeds: int, delay: float) -> None:
           f"{statistics.median(seconds):.1f} s median, {max(seconds):.1f} s worst")
 
 
+def jittered(seeds: int, delay: float) -> None:
+    from furuta_cosim.identify.foreign import pd_log
+    from furuta_cosim.identify.run import identify
+    from furuta_cosim.identify.synthetic import truth
+
+    true = truth()
+    print(f"jittered: a lab's PD {delay * 1000:g} ms late inside its loop, run 1.5 to 4.75 ms apart, replayed at "
+          "its instants; R_a, M_f from 20 % off (profiles off), beside the same loop on a uniform 2 ms clock")
+    within, apart, seconds = 0, [], []
+    for seed in range(seeds):
+        fitted = {}
+        with tempfile.TemporaryDirectory() as scratch:
+            for jitter in (False, True):
+                folder = Path(scratch) / str(jitter)
+                path = pd_log(folder, seed=seed, delay=delay, jitter=jitter)
+                spec = folder / "spec.yaml"
+                lines = ["name: pd-jittered", "plant: qube-servo-3", f"experiments: [{path.name}]", "free:"]
+                lines += [f"  {k}: {{start: {true[k] * 1.2!r}, bounds: [{lo!r}, {hi!r}]}}"
+                          for k, (lo, hi) in FREE.items()]
+                spec.write_text("\n".join(lines) + "\n")
+                started = time.perf_counter()
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                    identify(spec, folder / "fit", profiles=False)
+                if jitter:
+                    seconds.append(time.perf_counter() - started)
+                document = json.loads((folder / "fit" / "fit.json").read_text())
+                fitted[jitter] = (document["parameters"], document["verdict"]["trusted"])
+        parameters, trusted = fitted[True]
+        ok = all(parameters[k]["interval"][0] <= true[k] <= parameters[k]["interval"][1] for k in FREE)
+        within += ok
+        off = {k: abs(parameters[k]["value"] / fitted[False][0][k]["value"] - 1) for k in FREE}
+        apart.append(max(off.values()))
+        print(f"  seed {seed}: " + ", ".join(f"{k} {parameters[k]['value']:.4g} [{parameters[k]['interval'][0]:.4g}, "
+                                             f"{parameters[k]['interval'][1]:.4g}] ({off[k]:.2%} from uniform "
+                                             f"{fitted[False][0][k]['value']:.4g})" for k in FREE)
+              + f"; {'trusted' if trusted else 'NOT trusted'}; {seconds[-1]:.1f} s")
+    print(f"  truth inside both intervals {within}/{seeds}; from the uniform fit {statistics.median(apart):.2%} median, "
+          f"{max(apart):.2%} worst (target 3 %); fit {statistics.median(seconds):.1f} s median, {max(seconds):.1f} s worst")
+
+
 def wrong() -> None:
     import yaml
 
@@ -189,7 +234,7 @@ def wrong() -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--parts", default="late,paced,loop-delay,wrong")
+    parser.add_argument("--parts", default="late,paced,loop-delay,jittered,wrong")
     parser.add_argument("--late", type=float, default=0.003, help="s: each sample up to this late (late part)")
     parser.add_argument("--delay", type=float, default=0.005, help="s: the delay inside the PD's loop")
     parser.add_argument("--hogs", type=int, default=2, help="spinning processes beside the paced runs")
@@ -202,10 +247,12 @@ def main() -> None:
             paced(args.seeds, args.hogs)
         elif part == "loop-delay":
             loop_delay(args.seeds, args.delay)
+        elif part == "jittered":
+            jittered(args.seeds, args.delay)
         elif part == "wrong":
             wrong()
         else:
-            parser.error(f"--parts: {part!r}: expected late, paced, loop-delay or wrong")
+            parser.error(f"--parts: {part!r}: expected late, paced, loop-delay, jittered or wrong")
     print(f"{time.perf_counter() - started:.0f} s in all")
 
 
