@@ -153,3 +153,24 @@ def test_a_jittered_pd_log_fits_as_its_uniform_clock_does(logs, tmp_path):
         assert low <= true[name] <= high, (name, fitted[True][name])
         # measured on this seed: 1.0 % (R_a) and 2.6 % (M_f) apart (tools/bench_loop.py: 10 seeds)
         assert fitted[True][name]["value"] == pytest.approx(fitted[False][name]["value"], rel=0.03), name
+
+
+def test_a_jittered_loop_replayed_open_loop_steps_its_logged_intervals(logs):
+    # a closed-loop log that identify replays open loop (a swing-up: its logged command, after
+    # the loop's delay): the plant steps over each logged interval, the command held from its
+    # row's time plus the delay. The first 0.3 s of the balancing log, before the upright
+    # pendulum driven open loop parts from it
+    from furuta_cosim.identify.replay import simulate
+    from furuta_cosim.identify.split import delayed
+
+    target = target_for(plant="qube-servo-3")
+    experiment = delayed(load_experiment(logs[True]).truncated(0.3))
+    assert experiment.loop is None and experiment.jittered
+    with open_session(target) as session:
+        found = simulate(session, target, experiment)
+        stretched = simulate(session, target, replace(experiment, jittered=False))   # stepped at the period
+    rms = {n: float(np.sqrt(np.mean((found[n] - experiment.outputs[n].values) ** 2))) / QUANTUM for n in found}
+    off = {n: float(np.sqrt(np.mean((stretched[n] - experiment.outputs[n].values) ** 2))) / QUANTUM for n in found}
+    # measured: 0.29 / 0.30 quanta RMS (arm / pendulum) at the logged intervals, 0.93 / 1.35 at the period
+    assert rms["theta0"] < 1.0 and rms["theta1"] < 1.0, rms
+    assert off["theta1"] > 3 * rms["theta1"], (rms, off)

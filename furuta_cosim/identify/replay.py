@@ -285,8 +285,10 @@ def simulate(session, target: Target, experiment: Experiment,
         session.set_io(inputs=[v for v, _, _ in fmu_in], outputs=[v for v, _, _ in fmu_out])
         raw[0] = session.get([v for v, _, _ in fmu_out])
         h, step, block = experiment.period, session.step, 4096
-        # a log that records when each sample was read (a rig's `late`) is stepped to those times
-        steps = None if experiment.late is None else np.diff(experiment.read_at).tolist()
+        # a log that records when each sample was read (a rig's `late`), or whose clock jitters (a
+        # closed loop's, replayed open loop: split.delayed), is stepped to those times
+        timed = experiment.late is not None or experiment.jittered
+        steps = np.diff(experiment.read_at).tolist() if timed else None
         for first in range(0, experiment.samples - 1, block):
             for k, row in enumerate(u[first:min(first + block, experiment.samples - 1)].tolist(), start=first):
                 if steps is None:

@@ -56,7 +56,7 @@ def delayed(experiment):
     if loop is None:
         return experiment
     inputs = dict(experiment.inputs)
-    timed = experiment.late is not None or loop.compute is not None
+    timed = experiment.late is not None or loop.compute is not None or experiment.jittered
     delays = dict(experiment.delays)
     if "V" in inputs and not np.isscalar(inputs["V"]) and loop.free_delay is not None:
         # the delay is fitted: the logged command kept, delayed by the fit's value in each run
