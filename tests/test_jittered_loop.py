@@ -174,3 +174,17 @@ def test_a_jittered_loop_replayed_open_loop_steps_its_logged_intervals(logs):
     # measured: 0.29 / 0.30 quanta RMS (arm / pendulum) at the logged intervals, 0.93 / 1.35 at the period
     assert rms["theta0"] < 1.0 and rms["theta1"] < 1.0, rms
     assert off["theta1"] > 3 * rms["theta1"], (rms, off)
+
+
+def test_a_window_cut_mid_run_of_a_jittered_loop_starts_the_law_where_the_log_left_it(logs, tmp_path):
+    # the law's state at the window's start from the logged rows before it, each over its own
+    # interval; the replay's lead-in the rows before (a jittered clock's steps are taken)
+    def cut(data):
+        data["window"] = [1.0, 5.0]
+        data["start"] = {"theta0": "data", "theta1": "data", "i": "data",
+                         "dtheta0": {"free": [-1.0, 1.0]}, "dtheta1": {"free": [-1.0, 1.0]}}
+
+    experiment = load_experiment(_stated(logs[True], tmp_path, cut))
+    assert experiment.jittered and experiment.t[0] >= 1.0
+    assert experiment.loop.lead_in is not None and len(experiment.loop.lead_in.current) > 400
+    np.testing.assert_allclose(rebuilt_command(experiment), experiment.inputs["V"], rtol=0, atol=1e-9)
