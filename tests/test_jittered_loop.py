@@ -188,3 +188,21 @@ def test_a_window_cut_mid_run_of_a_jittered_loop_starts_the_law_where_the_log_le
     assert experiment.jittered and experiment.t[0] >= 1.0
     assert experiment.loop.lead_in is not None and len(experiment.loop.lead_in.current) > 400
     np.testing.assert_allclose(rebuilt_command(experiment), experiment.inputs["V"], rtol=0, atol=1e-9)
+
+
+def test_a_loop_that_ran_on_a_uniform_clock_stamped_with_jitter_is_named_the_clock(logs, tmp_path):
+    # the uniform loop's rows stamped 0 to 1.5 ms late (a logger that stamps each row when it
+    # writes it): the law over the stamped intervals is not what ran, the law at the period is
+    rows = _rows(logs[False].parent / "pd.csv")
+    stamps = np.random.default_rng(5).uniform(0.0, 0.0015, len(rows) - 2)
+    for j, late in enumerate(stamps, start=1):
+        cells = rows[j].split(",")
+        cells[0] = repr(float(cells[0]) + float(late))
+        rows[j] = ",".join(cells)
+    (tmp_path / "pd.csv").write_text("\n".join(rows) + "\n")
+    data = yaml.safe_load(logs[False].read_text())
+    data["window"] = [0.0, 5.9]
+    (tmp_path / "pd.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ConfigError, match=r"loop.law: pd.csv: line \d+: .*the clock: stepped at the log's typical step "
+                                          r"\(0.002\d* s\) the law gives the logged output"):
+        load_experiment(tmp_path / "pd.yaml")

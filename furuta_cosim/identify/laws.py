@@ -453,6 +453,14 @@ def _agrees(check: Checker, law: LinearLaw, rows: np.ndarray, output: np.ndarray
     k = int(np.argmax(apart > AGREE * span))
     why = cause(own, logged, period, AGREE * span / max(
         float(np.sqrt(np.mean(logged ** 2))), 1e-12))
+    if law.varying is not None and not why:
+        # the clock: the law at the typical step gives the logged output, so the controller ran
+        # on a uniform clock and the logged times are not when it ran (a logger's own stamps)
+        u, _ = law.respond(rows, law.x0)   # its matrices at the period (read_law)
+        if np.max(np.abs((u + offset) * factor - logged)) <= AGREE * span:
+            why = (f"the clock: stepped at the log's typical step ({period:g} s) the law gives the logged output, "
+                   "so it ran on a uniform clock and the log's times are not when it ran (a logger that "
+                   "stamps each row when it writes it); give the times the loop ran at")
     check.fail("loop.law", f"{csv_name}: line {int(lines[k])}: the law gives {own[k]:.6g} where "
                            f"the controller logged {logged[k]:.6g} in {name} ({apart[k] / span:.1%} of its "
                            f"range, at most {AGREE:.0%}; largest {np.max(apart) / span:.1%}): the law as "
