@@ -270,9 +270,8 @@ def test_a_board_without_a_record_frees_the_rates_its_counts_show_moving():
     assert start["dtheta1"] == {"free": [-FREE_RATE, FREE_RATE]} and start["dtheta0"] == 0.0
 
 
-def test_a_mode_the_replay_does_not_switch_where_the_log_did_is_named(run, tmp_path):
-    # the log's mode column moved 10 samples later: the replay's catch is where it was, and
-    # the comparison says from when they part
+def _mode_moved(run, tmp_path, samples: int = 10):
+    """A copy of the run whose log's mode column is ``samples`` later."""
     import shutil
 
     folder = tmp_path / "moved"
@@ -281,9 +280,16 @@ def test_a_mode_the_replay_does_not_switch_where_the_log_did_is_named(run, tmp_p
     k = lines[0].split(",").index("mode")
     rows = [line.split(",") for line in lines[1:]]
     modes = [row[k] for row in rows]
-    for row, value in zip(rows, ["0.0"] * 10 + modes[:-10]):
+    for row, value in zip(rows, ["0.0"] * samples + modes[:-samples]):
         row[k] = value
     (folder / "log.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    return folder
+
+
+def test_a_mode_the_replay_does_not_switch_where_the_log_did_is_named(run, tmp_path):
+    # the log's mode column moved 10 samples later: the replay's catch is where it was, and
+    # the comparison says from when they part
+    folder = _mode_moved(run, tmp_path)
     found = _replay(folder / "experiment.yaml")["experiments"]["run"]["mode"]
     assert not found["agree"]
     assert found["logged"][0][0] == pytest.approx(found["replayed"][0][0] + 10 * 0.002, abs=1e-9)
@@ -294,20 +300,10 @@ def test_the_replay_runs_in_the_logged_mode_and_keeps_its_own_rule_beside_it(run
     # the log's catch moved 10 samples later: the replay's controller swings up until the log
     # says it caught (its switches are the log's, to the sample), and its own rule, which
     # catches where the run did, is kept as what it would have done
-    import shutil
-
     from furuta_cosim.identify.experiment import load_experiment
     from furuta_cosim.identify.replay import closed_loop, open_session, target_for
 
-    folder = tmp_path / "moved"
-    shutil.copytree(run, folder)
-    lines = (folder / "log.csv").read_text().splitlines()
-    k = lines[0].split(",").index("mode")
-    rows = [line.split(",") for line in lines[1:]]
-    modes = [row[k] for row in rows]
-    for row, value in zip(rows, ["0.0"] * 10 + modes[:-10]):
-        row[k] = value
-    (folder / "log.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    folder = _mode_moved(run, tmp_path)
     target = target_for(plant="qube-servo-3")
     logged = load_experiment(folder / "experiment.yaml")
     original = load_experiment(run / "experiment.yaml")
