@@ -150,7 +150,8 @@ def loop_delay(seeds: int, delay: float) -> None:
                     identify(spec, folder / "fit", profiles=False)
                 except ConfigError as error:
                     if seed == 0:
-                        print(f"  loop.delay free: refused in {time.perf_counter() - started:.2f} s: {error}")
+                        print(f"  loop.delay free: refused in {time.perf_counter() - started:.2f} s: "
+                              + str(error).replace(f"{folder}/", ""))
                     continue
                 seconds.append(time.perf_counter() - started)
                 document = json.loads((folder / "fit" / "fit.json").read_text())
@@ -227,7 +228,8 @@ def wrong() -> None:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(said):
             code = cli(["identify", str(spec), "-o", str(Path(scratch) / "fit")])
         took = time.perf_counter() - started
-        print("  " + "\n  ".join(line for line in said.getvalue().splitlines() if line.startswith("error:")))
+        print("  " + "\n  ".join(line.replace(f"{scratch}/", "") for line in said.getvalue().splitlines()
+                                  if line.startswith("error:")))
     print(f"wrong: a 10 s balancing log of lqr-qube stated with lqr-paper: identify exit {code} in {took:.2f} s")
 
 
