@@ -33,6 +33,13 @@ from furuta_cosim.signals import controller_state
 
 REFERENCE_INPUT = "r"
 
+# what an FMU of this exporter cannot hold: it is a linear law (the linear plant model's C),
+# and a swing-up's energy law and its switches to and from the catch are not
+_NOT_LINEAR = ("{source}: a swing-up is not a linear law, and the FMU this exporter builds holds one "
+               "(u = F r - Cc xc - Dc x): its energy pumping and its switches to and from the catch would be "
+               "dropped; export its balance controller ({balance}) for the loop near upright, and run the "
+               "swing-up in furuta-cosim (simulate, rig run)")
+
 
 def _signals(linear, tracked: str | None, F: float, delay: bool) -> list[tuple[str, str, str]]:
     """(name, unit, description) of the controller FMU's inputs and output: each fed-back
@@ -73,6 +80,8 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
     from furuta_cosim.models import load_model
 
     cfile = load_controller(name)
+    if cfile.swingup is not None:
+        raise ConfigError([_NOT_LINEAR.format(source=cfile.source, balance=Path(cfile.balance).stem if cfile.balance else "its balance controller")])
     model_name = model or cfile.model
     if not model_name:
         raise ConfigError([f"{cfile.source}: model: missing; name the model the controller "
