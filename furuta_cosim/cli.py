@@ -233,6 +233,8 @@ def cmd_simulate(args) -> int:
             scenario, plant = on_ssp(scenario, args.plant)
             print(f"{args.plant}: plant {plant.component} with parameter set {plant.set_name or '(none)'}",
                   file=sys.stderr)
+            for warning in plant.warnings:
+                print(f"warning: {warning}", file=sys.stderr)
         else:
             from furuta_cosim.cosim.master import on_plant
 

@@ -100,6 +100,8 @@ class SspPlant:
         The scenario file an archive of ours carries, extracted (else None).
     controller : Path or None
         The controller file it carries, extracted (else None).
+    warnings : list of str
+        What was read and ignored (a parameter the FMU does not have), one line each.
     """
 
     fmu: Path
@@ -111,6 +113,7 @@ class SspPlant:
     step: float | None = None
     scenario: Path | None = None
     controller: Path | None = None
+    warnings: list = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- writing --------
@@ -407,6 +410,128 @@ def is_ssp(text) -> bool:
     return split_ssp(str(text))[0].endswith(".ssp")
 
 
+class Archive:
+    """An SSP archive opened as hostile input (:func:`open_archive`): its system description
+    (``root``), each component's element, extracted FMU and model description (``described``),
+    its entries' names, and ``read(entry)`` within the limits; ``warnings`` collects what the
+    standard says a tool ignores (an .ssv's parameter the FMU does not have)."""
+
+    def __init__(self, path: Path, data: bytes, zipped: zipfile.ZipFile):
+        self.path, self.where, self._zip = path, str(path), zipped
+        self.names = {i.filename for i in zipped.infolist()}
+        self.warnings: list[str] = []
+        self._taken = 0          # bytes read in all: an entry's size in its header can lie
+        self.key = hashlib.sha256(data).hexdigest()[:16]
+        self.root = None
+        self.described: dict = {}
+        self.out: Path | None = None
+
+    def fail(self, entry: str | None, message: str) -> ConfigError:
+        return ConfigError([f"{self.where}" + (f" ({entry})" if entry else "") + f": {message}"])
+
+    def read(self, entry: str) -> bytes:
+        entry = str(PurePosixPath(entry))
+        if entry not in self.names:
+            raise self.fail(entry, "missing from the archive")
+        try:
+            with self._zip.open(entry) as handle:
+                content = handle.read(MAX_ENTRY + 1)
+        except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as error:
+            raise self.fail(entry, f"a corrupt entry ({error})") from None
+        if len(content) > MAX_ENTRY:
+            raise self.fail(entry, f"larger than {MAX_ENTRY // 2**20} MB")
+        self._taken += len(content)
+        if self._taken > MAX_TOTAL:
+            raise self.fail(entry, f"more than {MAX_TOTAL // 2**20} MB read from the archive in all")
+        return content
+
+    def sets(self, name: str) -> list[tuple[str, object]]:
+        """Component ``name``'s parameter sets in binding order: (the entry it is in, its
+        ssv:ParameterSet)."""
+        component = self.described[name][0]
+        found = []
+        for binding in component.iterfind(f"{{{SSD}}}ParameterBindings/{{{SSD}}}ParameterBinding"):
+            source = binding.get("source")
+            if source:
+                found.append((source, _parse(self.read(source), source, self.fail)))
+            else:
+                inline = binding.find(f"{{{SSD}}}ParameterValues/{{{SSV}}}ParameterSet")
+                if inline is not None:
+                    found.append((ENTRY, inline))
+        return found
+
+
+def open_archive(path: str | Path, folder: str | Path | None = None) -> Archive:
+    """Open ``path`` as an SSP: within the limits, every entry inside the archive's folder, its
+    ``SystemStructure.ssd`` well-formed SSP 1.0 with its components, each component's FMU
+    extracted (to ``folder``, default a cache by the archive's hash) and readable, each of its
+    connectors a variable of that FMU. One line naming the archive and the entry otherwise."""
+    from furuta_cosim.files import write_bytes
+    from furuta_cosim.fmu.session import model_description
+    from furuta_cosim.paths import cache
+
+    path = Path(path)
+    probe = Archive.__new__(Archive)
+    probe.where = str(path)
+    fail = probe.fail
+    if not path.is_file():
+        raise fail(None, "no such file")
+    data = path.read_bytes()
+    if len(data) > MAX_TOTAL:
+        raise fail(None, f"larger than {MAX_TOTAL // 2**20} MB")
+    try:
+        zipped = zipfile.ZipFile(io.BytesIO(data))
+    except zipfile.BadZipFile:
+        raise fail(None, "not an SSP: not a zip archive") from None
+    members = zipped.infolist()
+    if len(members) > MAX_ENTRIES:
+        raise fail(None, f"{len(members)} entries (at most {MAX_ENTRIES})")
+    for info in members:
+        name = PurePosixPath(info.filename)
+        if name.is_absolute() or ".." in name.parts or "\\" in info.filename or ":" in info.filename:
+            raise fail(info.filename, "an entry outside the archive's folder")
+    if sum(i.file_size for i in members) > MAX_TOTAL:
+        raise fail(None, f"more than {MAX_TOTAL // 2**20} MB when extracted")
+    archive = Archive(path, data, zipped)
+    root = archive.root = _parse(archive.read(ENTRY), ENTRY, fail)
+    if root.tag != f"{{{SSD}}}SystemStructureDescription":
+        raise fail(ENTRY, f"expected an ssd:SystemStructureDescription (SSP 1.0), found {_plain(root.tag)}")
+    system = root.find(f"{{{SSD}}}System")
+    elements = system.find(f"{{{SSD}}}Elements") if system is not None else None
+    if elements is None:
+        raise fail(ENTRY, "no ssd:System with ssd:Elements")
+    components = elements.findall(f"{{{SSD}}}Component")
+    if not components:
+        raise fail(ENTRY, "ssd:Elements holds no ssd:Component")
+    out = archive.out = Path(folder) if folder is not None else cache() / "ssp" / archive.key
+    for component in components:
+        name, source = component.get("name"), component.get("source")
+        if not name or not source:
+            raise fail(ENTRY, "an ssd:Component without its name or source")
+        if not SET_NAME.fullmatch(name):
+            raise fail(ENTRY, f"component {name!r}: not a plain name")
+        if name in archive.described:
+            raise fail(ENTRY, f"component {name!r}: two components of that name")
+        entry = str(PurePosixPath(source))
+        if entry not in archive.names:
+            raise fail(entry, f"component {name}'s FMU is missing from the archive")
+        target = out / f"{name}.fmu"
+        content = archive.read(entry)
+        if not target.is_file() or target.read_bytes() != content:
+            write_bytes(target, content)
+        try:
+            md = model_description(target)
+        except Exception as error:  # an FMU from another tool is hostile: any failure is its
+            raise fail(entry, f"component {name}: not a readable FMU ({error})") from None
+        variables = _variables(md)
+        for connector in component.iterfind(f"{{{SSD}}}Connectors/{{{SSD}}}Connector"):
+            cname = connector.get("name")
+            if cname not in variables:
+                raise fail(ENTRY, f"component {name}: connector {cname!r} is no variable of {entry}")
+        archive.described[name] = (component, target, md)
+    return archive
+
+
 def read_ssp(path: str | Path, parameter_set: str | None = None, *, control_input: str = "V",
              folder: str | Path | None = None) -> SspPlant:
     """The plant of an SSP archive (module docstring): the component named ``plant``, else the
@@ -436,120 +561,31 @@ def read_ssp(path: str | Path, parameter_set: str | None = None, *, control_inpu
         its variable, a parameter of the wrong type or unit, an unknown set.
     """
     from furuta_cosim.files import write_bytes
-    from furuta_cosim.fmu.session import model_description
-    from furuta_cosim.paths import cache
 
-    path = Path(path)
-    where = str(path)
-
-    def fail(entry: str | None, message: str) -> ConfigError:
-        return ConfigError([f"{where}" + (f" ({entry})" if entry else "") + f": {message}"])
-
-    if not path.is_file():
-        raise fail(None, "no such file")
-    data = path.read_bytes()
-    if len(data) > MAX_TOTAL:
-        raise fail(None, f"larger than {MAX_TOTAL // 2**20} MB")
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except zipfile.BadZipFile:
-        raise fail(None, "not an SSP: not a zip archive") from None
-    with archive:
-        members = archive.infolist()
-        if len(members) > MAX_ENTRIES:
-            raise fail(None, f"{len(members)} entries (at most {MAX_ENTRIES})")
-        for info in members:
-            name = PurePosixPath(info.filename)
-            if name.is_absolute() or ".." in name.parts or "\\" in info.filename or ":" in info.filename:
-                raise fail(info.filename, "an entry outside the archive's folder")
-        if sum(i.file_size for i in members) > MAX_TOTAL:
-            raise fail(None, f"more than {MAX_TOTAL // 2**20} MB when extracted")
-        names = {i.filename for i in members}
-        taken = [0]   # bytes read in all: an entry's size in its header can lie
-
-        def read(entry: str) -> bytes:
-            entry = str(PurePosixPath(entry))
-            if entry not in names:
-                raise fail(entry, "missing from the archive")
-            try:
-                with archive.open(entry) as handle:
-                    content = handle.read(MAX_ENTRY + 1)
-            except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as error:
-                raise fail(entry, f"a corrupt entry ({error})") from None
-            if len(content) > MAX_ENTRY:
-                raise fail(entry, f"larger than {MAX_ENTRY // 2**20} MB")
-            taken[0] += len(content)
-            if taken[0] > MAX_TOTAL:
-                raise fail(entry, f"more than {MAX_TOTAL // 2**20} MB read from the archive in all")
-            return content
-
-        root = _parse(read(ENTRY), ENTRY, fail)
-        if root.tag != f"{{{SSD}}}SystemStructureDescription":
-            raise fail(ENTRY, f"expected an ssd:SystemStructureDescription (SSP 1.0), found {_plain(root.tag)}")
-        system = root.find(f"{{{SSD}}}System")
-        elements = system.find(f"{{{SSD}}}Elements") if system is not None else None
-        if elements is None:
-            raise fail(ENTRY, "no ssd:System with ssd:Elements")
-        components = elements.findall(f"{{{SSD}}}Component")
-        if not components:
-            raise fail(ENTRY, "ssd:Elements holds no ssd:Component")
-        key = hashlib.sha256(data).hexdigest()[:16]
-        out = Path(folder) if folder is not None else cache() / "ssp" / key
-        described = {}
-        for component in components:
-            name, source = component.get("name"), component.get("source")
-            if not name or not source:
-                raise fail(ENTRY, "an ssd:Component without its name or source")
-            if not SET_NAME.fullmatch(name):
-                raise fail(ENTRY, f"component {name!r}: not a plain name")
-            entry = str(PurePosixPath(source))
-            if entry not in names:
-                raise fail(entry, f"component {name}'s FMU is missing from the archive")
-            target = out / f"{name}.fmu"
-            content = read(entry)
-            if not target.is_file() or target.read_bytes() != content:
-                write_bytes(target, content)
-            try:
-                md = model_description(target)
-            except Exception as error:  # an FMU from another tool is hostile: any failure is its
-                raise fail(entry, f"component {name}: not a readable FMU ({error})") from None
-            variables = _variables(md)
-            for connector in component.iterfind(f"{{{SSD}}}Connectors/{{{SSD}}}Connector"):
-                cname = connector.get("name")
-                if cname not in variables:
-                    raise fail(ENTRY, f"component {name}: connector {cname!r} is no variable of {entry}")
-            described[name] = (component, target, md)
-        chosen = _plant_component(described, control_input, fail)
-        component, target, md = described[chosen]
-        sets = []
-        for binding in component.iterfind(f"{{{SSD}}}ParameterBindings/{{{SSD}}}ParameterBinding"):
-            source = binding.get("source")
-            if source:
-                ssv = _parse(read(source), source, fail)
-                sets.append((source, ssv))
-            else:
-                inline = binding.find(f"{{{SSD}}}ParameterValues/{{{SSV}}}ParameterSet")
-                if inline is not None:
-                    sets.append((ENTRY, inline))
-        names_of = [ssv.get("name") or "" for _, ssv in sets]
-        parameters, set_name = {}, None
-        if parameter_set is not None and parameter_set not in names_of:
-            raise fail(None, f"no parameter set {parameter_set!r} for component {chosen} "
-                             f"(it has: {', '.join(names_of) or 'none'})")
-        if sets:
-            k = names_of.index(parameter_set) if parameter_set is not None else 0
-            source, ssv = sets[k]
-            set_name = names_of[k]
-            parameters = _set_values(ssv, source, md, fail)
-        stop, step = _experiment(root, fail)
-        carried = {}
-        for kind in ("scenario", "controller"):
-            entry = f"resources/furuta-cosim/{kind}.yaml"
-            if entry in names:
-                carried[kind] = out / "furuta-cosim" / f"{kind}.yaml"
-                write_bytes(carried[kind], read(entry))
+    archive = open_archive(path, folder)
+    read, fail, names, out = archive.read, archive.fail, archive.names, archive.out
+    chosen = _plant_component(archive.described, control_input, fail)
+    _, target, md = archive.described[chosen]
+    sets = archive.sets(chosen)
+    names_of = [ssv.get("name") or "" for _, ssv in sets]
+    parameters, set_name = {}, None
+    if parameter_set is not None and parameter_set not in names_of:
+        raise fail(None, f"no parameter set {parameter_set!r} for component {chosen} "
+                         f"(it has: {', '.join(names_of) or 'none'})")
+    if sets:
+        k = names_of.index(parameter_set) if parameter_set is not None else 0
+        source, ssv = sets[k]
+        set_name = names_of[k]
+        parameters = _set_values(ssv, source, md, fail, archive.warnings)
+    stop, step = _experiment(archive.root, fail)
+    carried = {}
+    for kind in ("scenario", "controller"):
+        entry = f"resources/furuta-cosim/{kind}.yaml"
+        if entry in names:
+            carried[kind] = out / "furuta-cosim" / f"{kind}.yaml"
+            write_bytes(carried[kind], read(entry))
     return SspPlant(target, chosen, set_name, parameters, names_of, stop, step,
-                    carried.get("scenario"), carried.get("controller"))
+                    carried.get("scenario"), carried.get("controller"), archive.warnings)
 
 
 def _plain(tag: str) -> str:
@@ -576,7 +612,10 @@ def _plant_component(described: dict, control_input: str, fail) -> str:
     return takers[0]
 
 
-def _set_values(ssv, entry: str, md, fail) -> dict:
+def _set_values(ssv, entry: str, md, fail, warnings: list | None = None) -> dict:
+    """The numbers of a parameter set for ``md``'s FMU, each checked against the variable it
+    sets; a name the FMU does not have is ignored, as the standard says a tool does, and said
+    in ``warnings``."""
     variables = _variables(md)
     if ssv.tag != f"{{{SSV}}}ParameterSet":
         raise fail(entry, f"expected an ssv:ParameterSet, found {_plain(ssv.tag)}")
@@ -585,6 +624,10 @@ def _set_values(ssv, entry: str, md, fail) -> dict:
         name = parameter.get("name")
         v = variables.get(name)
         if v is None:
+            if warnings is not None:
+                warnings.append(f"{entry}: parameter {name!r} is no variable of {md.modelName}'s FMU: ignored "
+                                "(as the SSP standard has a tool do)")
+                continue
             raise fail(entry, f"parameter {name!r} is no variable of the plant's FMU")
         if v.causality not in ("parameter", "input"):
             raise fail(entry, f"parameter {name!r}: the FMU declares it {v.causality}, not a parameter")
