@@ -214,18 +214,15 @@ def cmd_simulate(args) -> int:
     from furuta_cosim.scenario import load_scenario
     from furuta_cosim.simulation import simulate_scenario
 
-    from furuta_cosim.ssp import carried_scenario, is_ssp, on_ssp
+    from furuta_cosim.ssp import is_ssp, on_ssp
 
     controllers = args.controller
-    if is_ssp(args.scenario):  # an SSP of ours: its scenario and controller on its plant
-        if args.plant or args.fmu:
-            raise ConfigError([f"{args.scenario}: an SSP runs its own plant: no --plant or --fmu with it"])
-        scenario, carried, plant = carried_scenario(args.scenario)
-        controllers = controllers or ([str(carried)] if carried else None)
-        print(f"{args.scenario}: plant {plant.component} with parameter set {plant.set_name or '(none)'}",
-              file=sys.stderr)
-    else:
-        scenario = load_scenario(args.scenario)
+    if is_ssp(args.scenario):  # an SSP runs as its system says
+        if args.plant or args.fmu or controllers:
+            raise ConfigError([f"{args.scenario}: an SSP runs its own system: no --plant, --fmu or --controller "
+                               "with it"])
+        return _simulate_system(args)
+    scenario = load_scenario(args.scenario)
     if args.plant:
         if args.fmu:
             raise ConfigError(["--plant: give a plant file or an FMU (--fmu), not both"])
@@ -257,6 +254,55 @@ def cmd_simulate(args) -> int:
         print(f"{len(results)} run(s) of {document['steps']} steps in {elapsed:.2f} s; "
               f"{', '.join(document['files'])} in {out}")
     return 0 if document["passed"] else EXIT_FAILED
+
+
+def _simulate_system(args) -> int:
+    """``simulate LOOP.ssp[:SET]``: the archive's system checked, run by the Jacobi master,
+    its values written and summed up (furuta_cosim/ssp_system.py)."""
+    import time
+    from pathlib import Path
+
+    from furuta_cosim.files import output_folder
+    from furuta_cosim.progress import Progress
+    from furuta_cosim.ssp import split_ssp
+    from furuta_cosim.ssp_system import SystemFailed, load_system, run_system, save_run
+    import numpy as np
+
+    path, name = split_ssp(args.scenario)
+    system = load_system(path, name)
+    out = output_folder(Path(args.output or Path("out") / Path(path).stem))
+    print(system.describe(), file=sys.stderr)
+    for warning in system.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    if not system.validated:
+        print("note: not validated against the SSP 1.0 schemas (install the ssp extra to check)", file=sys.stderr)
+    started = time.perf_counter()
+    progress = Progress()
+    try:
+        run = run_system(system, progress=lambda k, n: progress("the system", k, n))
+    except SystemFailed as error:
+        progress.close()
+        print(f"FAIL  {path}: {error}")
+        return EXIT_FAILED
+    finally:
+        progress.close()
+    elapsed = time.perf_counter() - started
+    written = save_run(system, run, out)
+    outputs = [n for n in run.values if system.parts[n.split(".", 1)[0]].kinds.get(n.split(".", 1)[1]) == "output"]
+    if args.json:
+        print(dumps({"archive": str(path), "order": run.order, "steps": system.steps, "step": system.step,
+                     "sets": {p.name: p.set_name for p in system.parts.values()},
+                     "warnings": system.warnings, "validated": system.validated,
+                     "outputs": {n: {"final": float(run[n][-1]), "max_abs": float(np.max(np.abs(run[n])))}
+                                 for n in outputs},
+                     "files": [w.name for w in written]}))
+        return 0
+    width = max(len(n) for n in outputs) if outputs else 10
+    print(f"{'output':{width}s}  {'final':>12s}  {'max |value|':>12s}")
+    for n in outputs:
+        print(f"{n:{width}s}  {run[n][-1]:12.6g}  {np.max(np.abs(run[n])):12.6g}")
+    print(f"{system.steps} steps ({run.order}) in {elapsed:.2f} s; {', '.join(w.name for w in written)} in {out}")
+    return 0
 
 
 def _cell(metrics: dict, key: str) -> str:

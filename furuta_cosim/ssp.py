@@ -688,18 +688,3 @@ def on_ssp(scenario, text: str | Path):
     overrides = {k: v for k, v in plant.parameters.items() if k not in started}
     overrides.update(scenario.overrides)
     return replace(scenario, fmu=plant.fmu, overrides=overrides), plant
-
-
-def carried_scenario(text: str | Path):
-    """``simulate loop.ssp``: the scenario and controller files an SSP of ours carries, read
-    from its extraction, and the scenario run on its plant: (scenario, controller path, plant)."""
-    from furuta_cosim.scenario import load_scenario
-
-    path, name = split_ssp(str(text))
-    plant = read_ssp(path, name)
-    if plant.scenario is None:
-        raise ConfigError([f"{path}: carries no furuta-cosim scenario (another tool's SSP): "
-                           f"run one on its plant with simulate SCENARIO --plant {text}"])
-    scenario = load_scenario(plant.scenario)
-    scenario, plant = on_ssp(scenario, text)
-    return scenario, plant.controller, plant

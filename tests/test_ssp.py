@@ -135,8 +135,7 @@ def test_every_exported_file_is_valid_against_the_standards_schemas(tmp_path):
 
 @pytest.mark.slow
 def test_a_parameter_set_read_back_is_the_plant_it_came_from(tmp_path, capsys):
-    """simulate on an SSP's set is simulate on that plant file, sample for sample; simulate
-    SSP runs the scenario and controller the archive carries."""
+    """simulate on an SSP's set is simulate on that plant file, sample for sample."""
     assert run_cli(capsys, "export-ssp", "qube-step", "--plant", "qube-servo-3", "--plant", "qube-servo-3-worn",
                    "-o", str(tmp_path / "q.ssp"))[0] == 0
     plant = read_ssp(tmp_path / "q.ssp", "qube-servo-3-worn", folder=tmp_path / "x")
@@ -150,12 +149,10 @@ def test_a_parameter_set_read_back_is_the_plant_it_came_from(tmp_path, capsys):
         runs[label] = np.genfromtxt(tmp_path / label / "lqr-qube.csv", delimiter=",", names=True)
     for column in ("theta0", "theta1", "u"):
         assert np.max(np.abs(runs["ssp"][column] - runs["file"][column])) <= 1e-12, column
-    code, _, err = run_cli(capsys, "simulate", str(tmp_path / "q.ssp"), "-o", str(tmp_path / "own"))
-    assert code == 0 and "parameter set qube-servo-3" in err
-    own = np.genfromtxt(tmp_path / "own" / "lqr-qube.csv", delimiter=",", names=True)
-    code, _, _ = run_cli(capsys, "simulate", "qube-step", "-o", str(tmp_path / "plain"))
-    plain = np.genfromtxt(tmp_path / "plain" / "lqr-qube.csv", delimiter=",", names=True)
-    assert np.max(np.abs(own["theta0"] - plain["theta0"])) <= 1e-12
+    # simulate on the archive itself runs its system, the worn set when named
+    code, _, err = run_cli(capsys, "simulate", f"{tmp_path / 'q.ssp'}:qube-servo-3-worn", "-o", str(tmp_path / "own"))
+    assert code == 0 and "set qube-servo-3-worn" in err
+    assert (tmp_path / "own" / "system.csv").is_file()
 
 
 def test_every_unit_of_the_plant_has_its_si_exponents():
@@ -283,7 +280,7 @@ def test_an_archive_is_hostile_input(tmp_path, capsys, exported, monkeypatch):
 
 def test_another_tools_ssp_is_read_by_its_plant_components_input(tmp_path, capsys, exported):
     """An SSP whose components are named otherwise: the plant is the one component whose FMU
-    takes the control input; one that carries no scenario of ours asks for one."""
+    takes the control input; simulate runs its system as it is wired, whatever the names."""
     def rename(name, data):
         if name == "SystemStructure.ssd":
             data = data.replace(b'"plant"', b'"pendulum"').replace(b'"controller"', b'"lqr"')
@@ -292,7 +289,10 @@ def test_another_tools_ssp_is_read_by_its_plant_components_input(tmp_path, capsy
     foreign = _rewritten(exported, tmp_path / "foreign.ssp", rename)
     plant = read_ssp(foreign, folder=tmp_path / "x")
     assert plant.component == "pendulum" and plant.parameters["R_a"] == 8.0
-    assert "carries no furuta-cosim scenario" in one_line(capsys, "simulate", str(foreign))
+    code, _, err = run_cli(capsys, "simulate", str(foreign), "-o", str(tmp_path / "own"))
+    assert code == 0 and "pendulum (pendulum.fmu" in err
+    ran = np.genfromtxt(tmp_path / "own" / "system.csv", delimiter=",", names=True)
+    assert abs(ran["pendulumtheta1"][0] - 0.1) < 1e-12 and abs(ran["pendulumtheta1"][-1]) < 1e-3
     code, _, _ = run_cli(capsys, "simulate", "paper-step", "--plant", str(foreign), "-o", str(tmp_path / "o"))
     assert code == 0
 

@@ -1,12 +1,15 @@
 """How closely other engines run an exported SSP: each loop exported by ``export_ssp``, run in
-Ecos and in libcosim, and compared with our master run of the same scenario with its
+Ecos, in libcosim and by ``simulate LOOP.ssp`` (its system, stepped by our Jacobi master), and
+compared with our master run of the same scenario with its
 one-sample delay (``timing.delay: 1``), sample for sample.
 
 Loops: ``paper-step`` under ``lqr-paper`` and under a generalized controller whose state sees
 the plant, FMI 2.0 and 3.0 (libcosim: 2.0 only; it refuses 3.0, which the suite checks); ``qube-step`` held at 0.3 rad
 from the start with a 0.13 V actuator limit that its first commands reach (the plant's
 ``V_max`` in the SSP). Per loop and engine: the largest difference of each angle (rad) and of
-the command the plant applied (V), and the export's time.
+the command the plant applied (V), and the export's time. For ``paper-step`` under ``lqr-paper``
+also our system stepped Gauss-Seidel (one component after the other), plant first and controller
+first: the exchange order the controller's one-sample hold does not make irrelevant.
 
     python3 tools/bench_ssp.py
 """
@@ -98,6 +101,16 @@ def quiet():
             os.close(saved)
 
 
+def ours(path: Path, found: dict, order=None) -> np.ndarray:
+    """``simulate LOOP.ssp``'s run (furuta_cosim/ssp_system.py): Jacobi, or Gauss-Seidel in
+    ``order``; the rows before each step, as the Ecos rows."""
+    from furuta_cosim.ssp_system import load_system, run_system
+
+    run = run_system(load_system(path), order=order)
+    n = int(round(found["stop"] / found["step"]))
+    return np.column_stack([run["plant.theta0"][:n], run["plant.theta1"][:n], run["plant.V"][:n]])
+
+
 def main() -> int:
     from furuta_cosim.ssp import export_ssp
 
@@ -121,7 +134,12 @@ def main() -> int:
                 found = export_ssp(scenario, controller, path, fmi_version=version)
                 seconds = time.perf_counter() - started
                 limit = LIMIT if name == "qube-hold" else np.inf
-                for engine, run in (("Ecos", ecos), ("libcosim", libcosim)):
+                engines = [("Ecos", ecos), ("libcosim", libcosim), ("simulate LOOP.ssp", ours)]
+                if label == "lqr-paper" and version == "2.0":   # the exchange order, measured
+                    engines += [(f"Gauss-Seidel, {first} first", lambda p, f, o=order: ours(p, f, o))
+                                for first, order in (("plant", ["plant", "controller"]),
+                                                     ("controller", ["controller", "plant"]))]
+                for engine, run in engines:
                     if engine == "libcosim" and version == "3.0":  # it refuses (tests/test_ssp.py)
                         print(f"| {name}, {label} | {version} | {engine} | not run: libcosimpy reads FMI 2.0 "
                               f"only | | | {seconds:.2f} s |")

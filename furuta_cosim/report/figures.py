@@ -253,3 +253,21 @@ def plot_tradeoff(feasible: Sequence[Sequence[float]], front: Sequence[Sequence[
     axis.legend(fontsize="small")
     figure.tight_layout()
     return _save(figure, path, dpi=110)
+
+
+def plot_system(t: np.ndarray, values: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> list[Path]:
+    """An SSP's run (furuta_cosim/ssp_system.py) as ``path``.png and .svg: one panel per
+    component output, grouped by component, at most 8 panels (the first by name)."""
+    names = list(values)[:8]
+    figure, axes = plt.subplots(len(names), 1, sharex=True, figsize=(8, 1.6 + 1.5 * len(names)), squeeze=False)
+    for axis, name in zip(axes[:, 0], names):
+        x, y = _thin(np.asarray(t), np.asarray(values[name]))
+        axis.plot(x, y, lw=1.0)
+        axis.set_ylabel(name, fontsize=8)
+        axis.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time (s)")
+    if title:
+        figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    with np.errstate(all="ignore"):
+        return _save(figure, path, dpi=110)
