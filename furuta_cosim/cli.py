@@ -924,8 +924,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = commands.add_parser("simulate", help="run a scenario: traces, metrics, figures")
     p.add_argument("scenario", help="scenario file or name in scenarios/ (paper-step, toy-step, ...); or an "
-                                    "SSP written by export-ssp (LOOP.ssp[:SET]): its scenario and "
-                                    "controller on its plant")
+                                    "SSP archive (LOOP.ssp[:SET]): the system it describes, checked, "
+                                    "run by a Jacobi master (system.csv, system.png)")
     p.add_argument("--controller", action="append",
                    help="run this controller file instead of the scenario's (repeatable)")
     p.add_argument("--fmu", help="run on this plant FMU instead of the scenario's plant "
