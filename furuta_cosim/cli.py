@@ -573,6 +573,9 @@ def cmd_export_ssp(args) -> int:
     print(f"connections: {'; '.join(found['connections'])}")
     print(f"experiment: 0 to {found['stop']:g} s in steps of {found['step']:g} s (FMI {found['fmi_version']})")
     print(f"note: {found['note']}")
+    if found["fmi_version"] != "2.0":
+        print("note: libcosim's Python package (libcosimpy 0.0.6) runs FMI 2.0 archives only; Ecos and "
+              "simulate LOOP.ssp run this one (export with --fmi-version 2.0 for libcosim)")
     print("schemas: " + ("valid against the SSP 1.0 schemas" if found["validated"] else
                          "not validated (install pyssp-standard to check against the SSP 1.0 schemas)"))
     print(found["path"])

@@ -340,6 +340,13 @@ def test_libcosim_refuses_the_fmi_3_archive_as_the_page_says(tmp_path):
         CosimExecution.from_ssp_file(str(tmp_path / "three.ssp"), step_size=2_000_000)
 
 
+def test_an_fmi_3_export_says_which_engines_run_it(tmp_path, capsys):
+    code, out, _ = run_cli(capsys, "export-ssp", "paper-step", "--fmi-version", "3.0", "-o", str(tmp_path / "t.ssp"))
+    assert code == 0 and "libcosimpy 0.0.6) runs FMI 2.0 archives only" in out
+    code, out, _ = run_cli(capsys, "export-ssp", "paper-step", "-o", str(tmp_path / "two.ssp"))
+    assert code == 0 and "libcosimpy" not in out
+
+
 def test_a_plant_file_identify_wrote_is_a_set_named_after_its_run_folder(tmp_path):
     folder = tmp_path / "qube-fit"
     folder.mkdir()
