@@ -29,6 +29,7 @@ from furuta_cosim.defaults import MAX_MAGNITUDE
 from furuta_cosim.design.controller import discretize_controller
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.fmu.plants import LinearSpec, PlantSet
+from furuta_cosim.scenario_source import noise_input
 from furuta_cosim.signals import controller_state
 
 REFERENCE_INPUT = "r"
@@ -41,7 +42,7 @@ _NOT_LINEAR = ("{source}: a swing-up is not a linear law, and the FMU this expor
                "swing-up in furuta-cosim (simulate, rig run)")
 
 
-def _signals(linear, tracked: str | None, F: float, delay: bool) -> list[tuple[str, str, str]]:
+def _signals(linear, tracked: str | None, F: float, delay: bool, noise=()) -> list[tuple[str, str, str]]:
     """(name, unit, description) of the controller FMU's inputs and output: each fed-back
     signal as the plant model declares it (fmu_src/furuta/model.py: its unit and its zero),
     the reference, and the command."""
@@ -66,6 +67,9 @@ def _signals(linear, tracked: str | None, F: float, delay: bool) -> list[tuple[s
                       + f", through the prefilter F = {F:.6g}"))
     else:
         found.append((REFERENCE_INPUT, "", "reference (the controller file names no tracked output: F = 0)"))
+    for name in noise:
+        v = declared.get(name)
+        found.append((noise_input(name), v.unit if v else "", f"measurement noise added to {name} before the law"))
     command = linear.inputs[0]
     v = declared.get(command)
     found.append((command, v.unit if v else "",
@@ -75,8 +79,10 @@ def _signals(linear, tracked: str | None, F: float, delay: bool) -> list[tuple[s
 
 
 def controller_plant(name: str | Path, *, period: float | None = None, model: str | None = None,
-                     delay: int = 0) -> PlantSet:
-    """The linear 'plant' of a controller file: what the exporter builds into its FMU."""
+                     delay: int = 0, noise: tuple = ()) -> PlantSet:
+    """The linear 'plant' of a controller file: what the exporter builds into its FMU. With
+    ``noise`` (fed-back signals), one more input per signal, added to it before the law
+    (``n_<signal>``, fed by a scenario's source: furuta_cosim/scenario_source.py)."""
     from furuta_cosim.models import load_model
 
     cfile = load_controller(name)
@@ -109,8 +115,13 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
                                f"+-{MAX_MAGNITUDE:g} (or not finite): the FMU's output would be too"])
     F = cfile.F if cfile.F is not None else 0.0
     n, m = c.Dc.shape[1], c.n_xc
-    A, B = c.Ac, np.hstack([c.Bc, np.zeros((m, 1))])     # xc[k+1] from [x; r]
-    C, D = -c.Cc, np.hstack([-c.Dc, [[F]]])              # u from xc and [x; r]
+    unknown = [s for s in noise if s not in linear.states]
+    if unknown:
+        raise ConfigError([f"{cfile.source}: noise on {unknown[0]}, which the controller does not feed back "
+                           f"({', '.join(linear.states)})"])
+    picked = [list(linear.states).index(s) for s in noise]
+    A, B = c.Ac, np.hstack([c.Bc, np.zeros((m, 1)), c.Bc[:, picked]])     # xc[k+1] from [x; r; n]
+    C, D = -c.Cc, np.hstack([-c.Dc, [[F]], -c.Dc[:, picked]])              # u from xc and [x; r; n]
     states = [controller_state(k + 1) for k in range(m)]
     if delay:  # z[k+1] = u[k]; the output is z
         A = np.block([[A, np.zeros((m, 1))], [C, np.zeros((1, 1))]])
@@ -118,7 +129,7 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
         C, D = np.hstack([np.zeros((1, m)), [[1.0]]]), np.zeros_like(D)
         states.append("u_held")
     elif not m:  # one inert state: C has no zero-size arrays
-        A, B, C, states = np.zeros((1, 1)), np.zeros((1, n + 1)), np.zeros((1, 1)), [controller_state(1)]
+        A, B, C, states = np.zeros((1, 1)), np.zeros((1, B.shape[1])), np.zeros((1, 1)), [controller_state(1)]
     # a C identifier from the name: its alphanumeric parts, capitalized (lqr-paper: LqrPaper)
     identifier = "".join(part.capitalize() for part in re.split(r"[^0-9A-Za-z]+", cfile.name) if part)
     if not identifier[:1].isalpha():
@@ -127,9 +138,9 @@ def controller_plant(name: str | Path, *, period: float | None = None, model: st
                       f"controller {cfile.name} at {period:g} s (u = F r - Cc xc - Dc x"
                       + (", applied one sample late)" if delay else ")"),
                       True, float(period), 1, A.tolist(), B.tolist(), C.tolist(), D.tolist(),
-                      [*linear.states, REFERENCE_INPUT], list(linear.inputs[:1]), states,
-                      [0.0] * len(states),
-                      signals=tuple(_signals(linear, cfile.tracked_output, F, bool(delay))))
+                      [*linear.states, REFERENCE_INPUT, *[noise_input(s) for s in noise]],
+                      list(linear.inputs[:1]), states, [0.0] * len(states),
+                      signals=tuple(_signals(linear, cfile.tracked_output, F, bool(delay), noise)))
     return PlantSet(cfile.name, cfile.path or Path(cfile.name), "linear",
                     spec.description, linear=spec)
 
@@ -207,17 +218,20 @@ def loop_only(prepared, what: str, allowed=()) -> None:
     """Refuse a scenario that needs more than a plant FMU and a controller FMU connected: a
     reference that changes, noise, disturbances, an estimator, an actuator limit, or a
     communication step finer than the control period are the Python master's (``allowed``:
-    the keys among ``reference``, ``actuator limit`` the caller carries otherwise)."""
+    the keys among ``reference``, ``actuator limit``, ``noise``, ``disturbances`` the caller
+    carries otherwise)."""
     scenario = prepared.scenario
     unsupported = [key for key, present in (
         ("reference (not constant)", not constant(prepared.rbar) and "reference" not in allowed),
-        ("noise", scenario.noise), ("disturbances", scenario.disturbances),
+        ("noise", scenario.noise and "noise" not in allowed),
+        ("disturbances", scenario.disturbances and "disturbances" not in allowed),
         ("estimator", scenario.estimator),
         ("actuator limit", prepared.limit and "actuator limit" not in allowed),
         ("timing.communication_step", prepared.substeps != 1))
         if present]
     if unsupported:
-        raise ConfigError([f"{scenario.source}: {what} has only plant and controller; "
+        parts = "plant and controller" + (" and the scenario's source" if "noise" in allowed else "")
+        raise ConfigError([f"{scenario.source}: {what} has only {parts}; "
                            f"this scenario needs the master for: {', '.join(unsupported)}"])
 
 

@@ -160,6 +160,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     from furuta_cosim.fmu.plants import load_plant
     from furuta_cosim.fmu.session import model_description
     from furuta_cosim.scenario import load_scenario
+    from furuta_cosim.scenario_source import needs_source, same_signals, scenario_source
 
     if fmi_version not in ("2.0", "3.0"):
         raise ConfigError([f"fmi_version: expected 2.0 or 3.0, got {fmi_version!r}"])
@@ -171,11 +172,16 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     output = Path(output)
     if output.suffix != ".ssp":
         raise ConfigError([f"{output}: an SSP archive's name ends in .ssp"])
+    if scenario.estimator:
+        raise ConfigError([f"{scenario.source}: estimator: the Kalman filter runs in furuta-cosim's master "
+                           "between the plant and the controller, and the exporter builds no FMU of it: an SSP of "
+                           "this loop would feed the controller the plant's states instead (nothing written)"])
     variants = [(None, scenario)] if not plants else [(p, on_plant(scenario, p)) for p in plants]
     sets = []
     for given, variant in variants:
         prepared = prepare(variant)
-        loop_only(prepared, "an SSP of the plant and controller FMUs", ("reference", "actuator limit"))
+        loop_only(prepared, "an SSP of the plant, the controller and the scenario's source",
+                  ("reference", "actuator limit", "noise", "disturbances"))
         name = set_name(load_plant(variant.plant)) if variant.plant else variant.name
         if not SET_NAME.fullmatch(name):
             raise ConfigError([f"{given or variant.plant}: its name {name!r} is no parameter set's name "
@@ -192,13 +198,24 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
                                "length, input or states): one SSP holds one loop"])
     plant_fmu = (first.fmu if fmi_version == "2.0"
                  else build_fmu(load_plant(sets[0]["plant"] or "furuta"), log=log, fmi_version="3.0"))
-    made = controller_plant(controller, period=first.control_period, delay=1)
+    source = scenario_source(first, scenario.name) if needs_source(first) else None
+    if source is not None:
+        for s in sets[1:]:
+            if not same_signals(first, s["prepared"]):
+                raise ConfigError([f"{s['plant']}: the scenario's reference, noise or disturbances differ on this "
+                                   f"plant from {sets[0]['plant']}'s: one SSP's source holds one"])
+    made = controller_plant(controller, period=first.control_period, delay=1,
+                            noise=tuple(first.noisy) if source is not None else ())
     controller_fmu = build_fmu(made, log=log, fmi_version=fmi_version)
+    source_fmu = build_fmu(source.plant, log=log, fmi_version=fmi_version) if source is not None else None
     plant_md, controller_md = model_description(plant_fmu), model_description(controller_fmu)
+    source_md = model_description(source_fmu) if source is not None else None
     outputs = dict(zip(first.states, first.outputs))
     connections = [("plant", outputs[s], "controller", s) for s in first.states]
     command = made.linear.outputs[0]
     connections.append(("controller", command, "plant", first.control_input))
+    if source is not None:
+        connections += [("source", output, component, name) for output, component, name in source.wiring]
     reference = float(first.rbar[0]) if len(first.rbar) else 0.0
     held = constant(first.rbar)
     stop = round(first.steps * first.control_period, 12)
@@ -220,13 +237,22 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
         files[f"resources/controller-{s['name']}.ssv"] = _ssv(s["name"], {REFERENCE_INPUT: reference},
                                                               controller_md)
         order.append(s["name"])
-    note = (f"the reference is the controller's input {REFERENCE_INPUT}, {reference:g} throughout" if held else
-            f"the scenario's reference changes in time, which an SSP of two FMUs cannot say: the "
-            f"controller's input {REFERENCE_INPUT} holds its first value, {reference:g}; drive it in your tool")
+    if source is None:
+        note = f"the reference is the controller's input {REFERENCE_INPUT}, {reference:g} throughout"
+    else:
+        carried = ["the reference" + ("" if held else " as it changes")]
+        if first.noisy:
+            carried.append(f"the measurement noise on {', '.join(first.noisy)}")
+        if len(first.disturbances):
+            carried.append(f"the disturbances at {', '.join(first.disturbance_inputs)}")
+        note = (f"{', '.join(carried)} come from the component source, one row per sample as furuta-cosim "
+                "draws them" + (f" (seed {scenario.noise.seed})" if scenario.noise else ""))
     files[ENTRY] = _ssd(scenario.name, plant_md, controller_md, connections, order, stop,
-                        first.control_period, controller, note)
+                        first.control_period, controller, note, source_md)
     files["resources/plant.fmu"] = Path(plant_fmu).read_bytes()
     files["resources/controller.fmu"] = Path(controller_fmu).read_bytes()
+    if source is not None:
+        files["resources/source.fmu"] = Path(source_fmu).read_bytes()
     files.update(_carried(scenario, controller))
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -240,6 +266,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     write_bytes(output, buffer.getvalue())
     return {"path": str(output), "validated": validated is not None, "sets": order, "step": first.control_period, "stop": stop,
             "reference": reference, "reference_held": held, "note": note, "fmi_version": fmi_version,
+            "source": source is not None,
             "connections": [f"{a}.{x} -> {b}.{y}" for a, x, b, y in connections]}
 
 
@@ -333,15 +360,17 @@ def _ssv(name: str, values: dict, md) -> bytes:
 
 
 def _ssd(name: str, plant_md, controller_md, connections, sets, stop: float, step: float,
-         controller, note: str) -> bytes:
+         controller, note: str, source_md=None) -> bytes:
     root = ET.Element(f"{{{SSD}}}SystemStructureDescription", version="1.0", name=name,
                       generationTool="furuta-cosim")
     system = ET.SubElement(root, f"{{{SSD}}}System", name="loop",
                            description=f"{name}: the plant under controller {Path(str(controller)).stem}; {note}")
     elements = ET.SubElement(system, f"{{{SSD}}}Elements")
     units = set()
-    for component, md, source in (("plant", plant_md, "resources/plant.fmu"),
-                                  ("controller", controller_md, "resources/controller.fmu")):
+    components = [("plant", plant_md, "resources/plant.fmu"), ("controller", controller_md, "resources/controller.fmu")]
+    if source_md is not None:
+        components.append(("source", source_md, "resources/source.fmu"))
+    for component, md, source in components:
         element = ET.SubElement(elements, f"{{{SSD}}}Component", name=component, source=source,
                                 type="application/x-fmu-sharedlibrary")
         connectors = ET.SubElement(element, f"{{{SSD}}}Connectors")
@@ -356,6 +385,8 @@ def _ssd(name: str, plant_md, controller_md, connections, sets, stop: float, ste
                 attributes["unit"] = unit
                 units.add(unit)
             ET.SubElement(connector, f"{{{SSC}}}Real", attributes)
+        if component == "source":
+            continue   # its table is its own: no parameter set
         bindings = ET.SubElement(element, f"{{{SSD}}}ParameterBindings")
         for s in sets:
             file = f"resources/{s}.ssv" if component == "plant" else f"resources/controller-{s}.ssv"

@@ -125,9 +125,10 @@ def test_every_exported_file_is_valid_against_the_standards_schemas(tmp_path):
         assert len(sets) == 4  # the plant's and the controller's, per set
         for name in sets:
             _schema("SystemStructureParameterValues.xsd").validate(io.BytesIO(archive.read(name)))
-    assert {"resources/plant.fmu", "resources/controller.fmu"} <= set(names)
+    assert {"resources/plant.fmu", "resources/controller.fmu", "resources/source.fmu"} <= set(names)
     assert found["sets"] == ["qube-servo-3", "qube-servo-3-worn"] and found["validated"]
-    assert not found["reference_held"] and "drive it in your tool" in found["note"]
+    assert not found["reference_held"] and found["source"]
+    assert "the reference as it changes come from the component source" in found["note"]
     # the same inputs give the same bytes
     export_ssp("qube-step", "lqr-qube", tmp_path / "again.ssp", plants=["qube-servo-3", "qube-servo-3-worn"])
     assert (tmp_path / "loop.ssp").read_bytes() == (tmp_path / "again.ssp").read_bytes()
@@ -308,9 +309,10 @@ def test_an_archive_the_schemas_refuse_is_not_written(tmp_path, monkeypatch):
     assert not (tmp_path / "bad.ssp").exists()
 
 
-def test_what_two_fmus_cannot_hold_is_refused_before_anything_is_written(tmp_path, capsys):
-    line = one_line(capsys, "export-ssp", "noise", "-o", str(tmp_path / "n.ssp"))
-    assert "needs the master for: noise" in line and not (tmp_path / "n.ssp").exists()
+def test_what_the_archive_cannot_hold_is_refused_before_anything_is_written(tmp_path, capsys):
+    line = one_line(capsys, "export-ssp", "noise-kalman", "-o", str(tmp_path / "n.ssp"))
+    assert "estimator: the Kalman filter runs in furuta-cosim's master" in line
+    assert "nothing written" in line and not (tmp_path / "n.ssp").exists()
     line = one_line(capsys, "export-ssp", "paper-step", "--plant", "qube-servo-3", "--plant", "qube-servo-3",
                     "-o", str(tmp_path / "t.ssp"))
     assert "the parameter set 'qube-servo-3' is there twice" in line

@@ -27,7 +27,7 @@ from furuta_cosim.files import atomic, copy, temporary_folder
 from furuta_cosim.fmu import versions
 from furuta_cosim.fmu.compiler import CFLAGS, building, compiler, intact, seal, unwritable
 from furuta_cosim.fmu.declaration import DeclarationError, Model
-from furuta_cosim.fmu.plants import PlantSet, load_plant, models
+from furuta_cosim.fmu.plants import NOT_PLANTS, PlantSet, load_plant, models
 
 # FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
 # the cache key, so such builds never mix with ordinary ones
@@ -57,7 +57,7 @@ def parameter_ranges(plant: PlantSet) -> dict[str, tuple[float, bool]]:
 def declaration(plant: PlantSet) -> Model:
     """Run the plant's ``declare()`` with its parameter set or linear spec (only a model of
     ``fmu_src/``, by its plain name: code named anywhere else is never run)."""
-    if plant.model not in models():
+    if plant.model not in models() and not (plant.model in NOT_PLANTS and plant.linear is not None):
         raise ConfigError([f"{plant.path}: model: expected one of {', '.join(models())}, "
                            f"got {plant.model!r}"])
     model_py = paths.fmu_sources() / plant.model / "model.py"

@@ -93,11 +93,16 @@ def plant_path(name: str | Path, also: tuple[str, ...] = (), beside: Path | None
                         also=tuple(model_names()) + also)
 
 
+# models of fmu_src/ the exporter builds from something else than a plant file: a scenario's
+# source (export-ssp), never a plant
+NOT_PLANTS = ("source",)
+
+
 def models() -> list[str]:
     """The plant models of ``fmu_src/`` (a folder with a model.py and a plain name): the only
     values a plant file's ``model`` may take. A parameter file never names code elsewhere."""
     return sorted(p.parent.name for p in paths.fmu_sources().glob("*/model.py")
-                  if re.fullmatch(r"[a-z][a-z0-9_]*", p.parent.name))
+                  if re.fullmatch(r"[a-z][a-z0-9_]*", p.parent.name) and p.parent.name not in NOT_PLANTS)
 
 
 def model_names() -> list[str]:
