@@ -13,8 +13,10 @@ fed-back outputs) and ``r``, its output after the model's input (``V``). A stati
 (n_xc = 0) keeps one inert state (C has no zero-size arrays): it never reaches the output.
 
 With ``delay=1`` the FMU holds each command for one sample (a state z: z[k+1] = u computed
-at k, output z), so it has no direct feedthrough and gives the same loop in any master,
-whatever order the master exchanges values in: the loop of ``timing.delay: 1``.
+at k, output z), so it has no direct feedthrough, and a master that exchanges values as
+Ecos, libcosim and ``simulate LOOP.ssp`` do (Jacobi: every FMU steps, then every output is
+copied) runs the loop of ``timing.delay: 1``; a Gauss-Seidel master runs another (measured on
+the docs' SSP page).
 """
 
 from __future__ import annotations

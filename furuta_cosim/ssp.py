@@ -7,6 +7,8 @@ An exported archive holds::
                                  experiment (start, stop; the step as libcosim's annotation)
     resources/plant.fmu          the plant FMU (the first plant's build; FMI 2.0 or 3.0)
     resources/controller.fmu     the controller FMU (export-controller's, one sample late)
+    resources/source.fmu         the scenario's reference, noise and disturbances, one row per
+                                 sample (when it has more than a constant reference)
     resources/SET.ssv            each plant's parameter set: every parameter of the plant FMU
                                  with its unit, and the scenario's start state
     resources/controller-SET.ssv the controller's reference, once per set (a tool that applies
@@ -16,8 +18,9 @@ An exported archive holds::
 Each component binds its sets in order, the first the default (libcosim applies a component's
 first binding when no set is named; Ecos applies the set named at its ``init``). The loop is
 the Ecos loop of the controller FMU (``export.ecos_closed_loop``): each step every FMU steps,
-then every output is copied to its input; the controller holds its command one sample, so the
-loop is the master's one-sample-delayed loop whatever the order of exchange.
+then every output is copied to its input (Jacobi); the controller holds its command one sample,
+so that exchange runs the master's one-sample-delayed loop (a Gauss-Seidel master, one FMU after
+the other, runs another: docs' SSP page).
 
 :func:`read_ssp` reads an archive (ours or another tool's) as hostile input: the entries it
 reads must lie inside the archive's folder, within size and count limits; the system
@@ -126,8 +129,9 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     Parameters
     ----------
     scenario : Scenario, str or path
-        Its plant, start state, constant reference, control period and duration; it must need
-        nothing but the two FMUs (no noise, disturbances, estimator or actuator limit).
+        Its plant, start state, reference, noise, disturbances, actuator limit, control period
+        and duration (a reference that changes, noise and disturbances through the source FMU:
+        furuta_cosim/scenario_source.py); no estimator.
     controller : str or path, optional
         A controller file or name (default: the scenario's first controller).
     output : path
@@ -150,7 +154,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     Raises
     ------
     ConfigError
-        Naming what the scenario needs that an SSP of two FMUs cannot hold, a plant of another
+        Naming what the scenario needs that the archive cannot hold (an estimator), a plant of another
         model, or a name that would not be a file name.
     """
     from furuta_cosim.cosim.master import on_plant, prepare
