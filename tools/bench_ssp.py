@@ -3,10 +3,14 @@ Ecos, in libcosim and by ``simulate LOOP.ssp`` (its system, stepped by our Jacob
 compared with our master run of the same scenario with its
 one-sample delay (``timing.delay: 1``), sample for sample.
 
-Loops: ``paper-step`` under ``lqr-paper`` and under a generalized controller whose state sees
-the plant, FMI 2.0 and 3.0 (libcosim: 2.0 only; it refuses 3.0, which the suite checks); ``qube-step`` held at 0.3 rad
-from the start with a 0.13 V actuator limit that its first commands reach (the plant's
-``V_max`` in the SSP). Per loop and engine: the largest difference of each angle (rad) and of
+Loops, each FMI 2.0 and 3.0 (libcosim: 2.0 only; it refuses 3.0, which the suite checks):
+``paper-step`` under ``lqr-paper``, ``bo-paper`` and a generalized controller whose state sees
+the plant; ``qube-step`` held at 0.3 rad from the start with a 0.13 V actuator limit that its
+first commands reach (the plant's ``V_max`` in the SSP); ``qube-step`` itself (its reference
+steps at 0.5 s: the source FMU) and ``qube-sine`` with two parameter sets (each chosen by name;
+libcosim takes no set name); ``noise`` (seeded measurement and process noise) and
+``disturbance`` (a pulse) through the source. Then the swing-up's refusal and the hostile
+archives the system check refuses, each with its line. Per loop and engine: the largest difference of each angle (rad) and of
 the command the plant applied (V), and the export's time. For ``paper-step`` under ``lqr-paper``
 also our system stepped Gauss-Seidel (one component after the other), plant first and controller
 first: the exchange order the controller's one-sample hold does not make irrelevant.
@@ -34,23 +38,25 @@ from helpers import DYNAMIC  # noqa: E402  the suite's generalized controller, o
 LIMIT = 0.13   # V: the QUBE loop's actuator limit
 
 
-def master(scenario, controller):
+def master(scenario, controller, plant=None):
     from furuta_cosim.cosim import evaluate, prepare
+    from furuta_cosim.cosim.master import on_plant
     from furuta_cosim.fmu.session import PlantSession
     from furuta_cosim.scenario import load_scenario
 
-    prepared = prepare(replace(load_scenario(scenario), delay=1))
+    loaded = replace(load_scenario(scenario), delay=1)
+    prepared = prepare(on_plant(loaded, plant) if plant else loaded)
     with PlantSession.open(prepared.fmu) as session:
         trace = evaluate(prepared, session, controller).trace
     return np.column_stack([trace["theta0"], trace["theta1"], trace.u])
 
 
-def ecos(path: Path, found: dict) -> np.ndarray:
+def ecos(path: Path, found: dict, parameter_set: str | None = None) -> np.ndarray:
     from ecospy import EcosSimulation
 
     rows = []
     with EcosSimulation(step_size=found["step"], ssp_path=str(path)) as simulation:
-        simulation.init(parameter_set=found["sets"][0])
+        simulation.init(parameter_set=parameter_set or found["sets"][0])
         for _ in range(round(found["stop"] / found["step"])):
             rows.append([simulation.get_real(n) for n in ("plant::theta0", "plant::theta1", "plant::V")])
             simulation.step()
@@ -101,21 +107,41 @@ def quiet():
             os.close(saved)
 
 
-def ours(path: Path, found: dict, order=None) -> np.ndarray:
+def ours(path: Path, found: dict, order=None, parameter_set: str | None = None) -> np.ndarray:
     """``simulate LOOP.ssp``'s run (furuta_cosim/ssp_system.py): Jacobi, or Gauss-Seidel in
     ``order``; the rows before each step, as the Ecos rows."""
     from furuta_cosim.ssp_system import load_system, run_system
 
-    run = run_system(load_system(path), order=order)
+    run = run_system(load_system(path, parameter_set), order=order)
     n = int(round(found["stop"] / found["step"]))
     return np.column_stack([run["plant.theta0"][:n], run["plant.theta1"][:n], run["plant.V"][:n]])
 
 
+def hostile(folder: Path) -> None:
+    """The archives the system check refuses (the suite's list), each with its line."""
+    from furuta_cosim.errors import ConfigError
+    from furuta_cosim.ssp import export_ssp
+    from furuta_cosim.ssp_system import load_system
+    from test_ssp import _rewritten
+    from test_ssp_system import BROKEN
+
+    export_ssp("paper-step", "lqr-paper", folder / "loop.ssp")
+    print("\nHostile archives (paper-step under lqr-paper, one entry changed), each refused before it runs:\n")
+    for k, (change, _) in enumerate(BROKEN):
+        bad = _rewritten(folder / "loop.ssp", folder / f"bad-{k}.ssp", change)
+        try:
+            load_system(bad)
+            print(f"- bad-{k}.ssp: RAN (not refused)")
+        except ConfigError as error:
+            print(f"- {str(error).replace(str(folder) + '/', '')}")
+
+
 def main() -> int:
+    from furuta_cosim.errors import ConfigError
     from furuta_cosim.ssp import export_ssp
 
-    print("| loop | FMI | engine | theta0 (rad) | theta1 (rad) | applied V | export |")
-    print("|---|---|---|---|---|---|---|")
+    print("| loop | set | FMI | engine | theta0 (rad) | theta1 (rad) | applied V | export |")
+    print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         (folder / "dynamic.yaml").write_text(DYNAMIC)
@@ -123,36 +149,53 @@ def main() -> int:
         hold.write_text((ROOT / "scenarios" / "qube-step.yaml").read_text()
                         .replace("points: [[0.0, 0.0], [0.5, 0.3]]", "points: [[0.0, 0.3]]")
                         .replace("name: qube-step", "name: qube-hold") + f"actuator: {{limit: {LIMIT}}}\n")
-        loops = [("paper-step", "lqr-paper", "lqr-paper"), ("paper-step", str(folder / "dynamic.yaml"), "generalized"),
-                 (str(hold), "lqr-qube", "lqr-qube")]
-        for scenario, controller, label in loops:
-            expected = master(scenario, controller)
+        two = ["qube-servo-3", "qube-servo-3-worn"]
+        loops = [("paper-step", "lqr-paper", "lqr-paper", ()), ("paper-step", "bo-paper", "bo-paper", ()),
+                 ("paper-step", str(folder / "dynamic.yaml"), "generalized", ()),
+                 (str(hold), "lqr-qube", "lqr-qube", ()), ("qube-step", "lqr-qube", "lqr-qube", ()),
+                 ("qube-sine", "lqr-qube", "lqr-qube", two), ("noise", "lqr-paper", "lqr-paper", ()),
+                 ("disturbance", "lqr-paper", "lqr-paper", ())]
+        for scenario, controller, label, plants in loops:
             name = Path(scenario).stem
-            for version in ("2.0", "3.0") if name == "paper-step" else ("2.0",):
+            for version in ("2.0", "3.0"):
                 path = folder / f"{name}-{label}-{version}.ssp"
                 started = time.perf_counter()
-                found = export_ssp(scenario, controller, path, fmi_version=version)
+                found = export_ssp(scenario, controller, path, plants=plants, fmi_version=version)
                 seconds = time.perf_counter() - started
                 limit = LIMIT if name == "qube-hold" else np.inf
-                engines = [("Ecos", ecos), ("libcosim", libcosim), ("simulate LOOP.ssp", ours)]
-                if label == "lqr-paper" and version == "2.0":   # the exchange order, measured
-                    engines += [(f"Gauss-Seidel, {first} first", lambda p, f, o=order: ours(p, f, o))
-                                for first, order in (("plant", ["plant", "controller"]),
-                                                     ("controller", ["controller", "plant"]))]
-                for engine, run in engines:
-                    if engine == "libcosim" and version == "3.0":  # it refuses (tests/test_ssp.py)
-                        print(f"| {name}, {label} | {version} | {engine} | not run: libcosimpy reads FMI 2.0 "
-                              f"only | | | {seconds:.2f} s |")
-                        continue
-                    with quiet():
-                        rows = run(path, found)
-                    if rows is None:
-                        print(f"| {name}, {label} | {version} | {engine} | refused | | | {seconds:.2f} s |")
-                        continue
-                    rows[:, 2] = np.clip(rows[:, 2], -limit, limit)
-                    worst = np.nanmax(np.abs(rows - expected), axis=0)
-                    print(f"| {name}, {label} | {version} | {engine} | {worst[0]:.2g} | {worst[1]:.2g} | "
-                          f"{worst[2]:.2g} | {seconds:.2f} s |", flush=True)
+                for k, set_name in enumerate(found["sets"]):
+                    expected = master(scenario, controller, plants[k] if plants else None)
+                    engines = [("Ecos", lambda p, f, s=set_name: ecos(p, f, s)),
+                               ("libcosim", libcosim),
+                               ("simulate LOOP.ssp", lambda p, f, s=set_name: ours(p, f, parameter_set=s))]
+                    if label == "lqr-paper" and name == "paper-step" and version == "2.0":   # the exchange order
+                        engines += [(f"Gauss-Seidel, {first} first", lambda p, f, o=order: ours(p, f, o))
+                                    for first, order in (("plant", ["plant", "controller"]),
+                                                         ("controller", ["controller", "plant"]))]
+                    row = f"| {name}, {label} | {set_name} | {version} |"
+                    for engine, run in engines:
+                        if engine == "libcosim" and version == "3.0":  # it refuses (tests/test_ssp.py)
+                            print(f"{row} {engine} | not run: libcosimpy reads FMI 2.0 only | | | {seconds:.2f} s |")
+                            continue
+                        if engine == "libcosim" and k > 0:
+                            print(f"{row} {engine} | not run: libcosimpy applies each component's first set "
+                                  f"(it takes no set name) | | | {seconds:.2f} s |")
+                            continue
+                        with quiet():
+                            rows = run(path, found)
+                        if rows is None:
+                            print(f"{row} {engine} | refused | | | {seconds:.2f} s |")
+                            continue
+                        rows[:, 2] = np.clip(rows[:, 2], -limit, limit)
+                        worst = np.nanmax(np.abs(rows - expected), axis=0)
+                        print(f"{row} {engine} | {worst[0]:.2g} | {worst[1]:.2g} | {worst[2]:.2g} | {seconds:.2f} s |",
+                              flush=True)
+        try:
+            export_ssp("swingup-qube", None, folder / "swingup.ssp")
+            print("| swingup-qube | | | | EXPORTED (not refused) | | | |")
+        except ConfigError as error:
+            print(f"\nThe swing-up: {str(error).replace(str(ROOT) + '/', '')}")
+        hostile(folder)
     return 0
 
 
