@@ -82,8 +82,13 @@ def cmd_linearize(args) -> int:
 
 
 def cmd_validate_fmu(args) -> int:
-    from furuta_cosim.fmu.check import validate
+    from pathlib import Path
 
+    from furuta_cosim.fmu.check import validate
+    from furuta_cosim.inputs import regular
+
+    if Path(args.path).exists() or Path(args.path).is_symlink():
+        regular(args.path)   # a FIFO or a device is refused before validation opens it
     findings = validate(args.path)
     width = max(len(f.check) for f in findings)
     for finding in findings:
@@ -573,6 +578,8 @@ def cmd_export_ssp(args) -> int:
     print(f"connections: {'; '.join(found['connections'])}")
     print(f"experiment: 0 to {found['stop']:g} s in steps of {found['step']:g} s (FMI {found['fmi_version']})")
     print(f"note: {found['note']}")
+    for warning in found["warnings"]:
+        print(f"WARNING {warning}")
     if found["fmi_version"] != "2.0":
         print("note: libcosim's Python package (libcosimpy 0.0.6) runs FMI 2.0 archives only; Ecos and "
               "simulate LOOP.ssp run this one (export with --fmi-version 2.0 for libcosim)")

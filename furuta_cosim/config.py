@@ -80,18 +80,10 @@ def _expanded_size(node, sizes: dict) -> int:
 def load_yaml(path: str | Path) -> Any:
     """Parse a YAML file with a safe loader. A missing file, a syntax error, a duplicate key,
     a file over 1 MB or one whose aliases expand to over 200,000 nodes is a ConfigError."""
+    from furuta_cosim.inputs import read_input
+
     path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            raw = handle.read(MAX_BYTES + 1)
-    except ValueError:  # a NUL in the name
-        raise ConfigError([f"{excerpt(str(path))}: not a usable file name"]) from None
-    except FileNotFoundError:
-        raise ConfigError([f"{path}: file not found"]) from None
-    except (IsADirectoryError, PermissionError, OSError) as error:
-        raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
-    if len(raw) > MAX_BYTES:
-        raise ConfigError([f"{path}: larger than {MAX_BYTES // 1_000_000} MB: not a furuta-cosim file"])
+    raw = read_input(path, MAX_BYTES, beyond="not a furuta-cosim file")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:

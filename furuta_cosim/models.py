@@ -122,9 +122,12 @@ def from_fmu(fmu: str | Path, mapping: str | Path | None = None) -> LinearModel:
     from furuta_cosim.fmu.variables import declared_conversion, is_real
     from furuta_cosim.scenario import load_mapping
 
+    from furuta_cosim.inputs import regular
+
     fmu = Path(fmu)
-    if not fmu.is_file():
+    if not fmu.exists() and not fmu.is_symlink():
         raise ConfigError([f"{fmu}: no such FMU file"])
+    regular(fmu)
     md = model_description(fmu)
     where = str(fmu)
     if md.modelExchange is None:

@@ -50,6 +50,9 @@ SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
 OURS = "org.furuta-cosim"
 ENTRY = "SystemStructure.ssd"
+# an exported loop's eigenvalue this close above 1 is an integrator (an angle no law holds), not a
+# growing mode: measured 1 + 4e-13 for bo-paper on the paper's plant, 1.004 for lqr-qube there
+MARGINAL = 1e-9
 # a hostile archive: at most this many entries, this many bytes in one entry read, in all
 MAX_ENTRIES, MAX_ENTRY, MAX_TOTAL = 1000, 200 * 2**20, 500 * 2**20
 SET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
@@ -208,6 +211,11 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
             if not same_signals(first, s["prepared"]):
                 raise ConfigError([f"{s['plant']}: the scenario's reference, noise or disturbances differ on this "
                                    f"plant from {sets[0]['plant']}'s: one SSP's source holds one"])
+    from furuta_cosim.cosim.evaluation import compile_controller
+
+    compiled = compile_controller(first, controller, key="controller")   # fits this plant: simulate's check
+    warnings = [line for s in sets for line in [_unstable_as_exported(s["prepared"], compiled.cfile,
+                                                                      s["plant"] or scenario.plant, scenario)] if line]
     made = controller_plant(controller, period=first.control_period, delay=1,
                             noise=tuple(first.noisy) if source is not None else ())
     controller_fmu = build_fmu(made, log=log, fmi_version=fmi_version)
@@ -270,7 +278,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
     write_bytes(output, buffer.getvalue())
     return {"path": str(output), "validated": validated is not None, "sets": order, "step": first.control_period, "stop": stop,
             "reference": reference, "reference_held": held, "note": note, "fmi_version": fmi_version,
-            "source": source is not None,
+            "source": source is not None, "warnings": warnings,
             "connections": [f"{a}.{x} -> {b}.{y}" for a, x, b, y in connections]}
 
 
@@ -408,6 +416,41 @@ def _ssd(name: str, plant_md, controller_md, connections, sets, stop: float, ste
     return _xml(root)
 
 
+def _unstable_as_exported(prepared, cfile, plant, scenario) -> str | None:
+    """A warning when the loop is unstable as the archive runs it: the plant linearized at its
+    start (the model ``analyze`` uses), the controller sampled at the control period, and the
+    controller FMU's one-sample hold; its largest eigenvalue's modulus above 1. The archive is
+    still the scenario's loop (simulate runs it too, and warns that it does not settle)."""
+    from furuta_cosim.design.controller import discretize_controller
+    from furuta_cosim.models import load_model
+
+    try:
+        model = load_model(plant, scenario.folder)
+    except ConfigError:
+        return None   # a plant no linear model describes: nothing to check it against here
+    if model.discrete or model.B.shape[1] != 1 or any(s not in model.states for s in prepared.states):
+        return None
+    import scipy.linalg
+
+    h = prepared.control_period
+    order = [model.states.index(s) for s in prepared.states]
+    A, B = model.A[np.ix_(order, order)], model.B[order, :]
+    n = A.shape[0]
+    block = scipy.linalg.expm(np.block([[A, B], [np.zeros((1, n + 1))]]) * h)   # zero-order hold
+    Ad, Bd = block[:n, :n], block[:n, n:]
+    c = discretize_controller(cfile.controller, h)
+    m = c.n_xc
+    loop = np.block([[Ad, np.zeros((n, m)), Bd],
+                     [c.Bc, c.Ac, np.zeros((m, 1))],
+                     [-c.Dc, -c.Cc, np.zeros((1, 1))]])
+    radius = float(np.max(np.abs(np.linalg.eigvals(loop))))
+    if radius <= 1.0 + MARGINAL:   # an eigenvalue at 1 (an arm left free) is marginal, not unstable
+        return None
+    return (f"controller {cfile.name} on plant {plant}: the loop this archive holds is UNSTABLE (linearized at "
+            f"its start, sampled at {h:g} s, each command held one sample: largest eigenvalue {radius:.6g}, "
+            f"above 1; `analyze {cfile.name} --model {plant}` judges the loop without the hold)")
+
+
 def _xml(root) -> bytes:
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
@@ -509,11 +552,14 @@ def open_archive(path: str | Path, folder: str | Path | None = None) -> Archive:
     probe = Archive.__new__(Archive)
     probe.where = str(path)
     fail = probe.fail
-    if not path.is_file():
+    from furuta_cosim.inputs import read_input, regular
+
+    if not path.exists() and not path.is_symlink():
         raise fail(None, "no such file")
-    data = path.read_bytes()
-    if len(data) > MAX_TOTAL:
+    regular(path)
+    if path.stat().st_size > MAX_TOTAL:   # before a byte is read: a sparse 20 GB file is not read
         raise fail(None, f"larger than {MAX_TOTAL // 2**20} MB")
+    data = read_input(path, MAX_TOTAL, beyond="not an SSP this reads")
     try:
         zipped = zipfile.ZipFile(io.BytesIO(data))
     except zipfile.BadZipFile:

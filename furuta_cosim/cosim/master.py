@@ -351,11 +351,13 @@ def _plant(scenario: Scenario, fmu: str | Path | None) -> tuple[PlantSet | None,
     given = fmu if fmu is not None else scenario.fmu
     if given is None:
         return plant, build_fmu(plant)
+    from furuta_cosim.inputs import regular
+
     path = Path(given)
-    if not path.is_file():
-        where = f"fmu {given}" if fmu is not None else f"{scenario.source}: plant.fmu: {given}"
-        raise ConfigError([f"{where}: no such FMU file"])
-    return plant, path
+    where = f"fmu " if fmu is not None else f"{scenario.source}: plant.fmu: "
+    if not path.exists() and not path.is_symlink():
+        raise ConfigError([f"{where}{given}: no such FMU file"])
+    return plant, regular(path, where)
 
 
 def _view(scenario: Scenario, variables: dict, identifier: str, fail):

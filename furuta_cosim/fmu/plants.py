@@ -177,14 +177,22 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         check.done()
         try:
             base_path = plant_path(base_name, beside=path.parent)
+            where = base_path.resolve()
         except ConfigError as error:
             raise error.within(f"{path}: extends") from None
-        if base_path.resolve() in seen:
+        except (RuntimeError, OSError, ValueError):   # a loop of links, a NUL in the name
+            raise ConfigError([f"{path}: extends: {excerpt(str(base_name))}: a loop of symbolic links or not "
+                               "a usable file name"]) from None
+        if where in seen:
             raise ConfigError([f"{path}: extends: circular ({base_name})"])
         if len(seen) + 1 >= MAX_EXTENDS:
             raise ConfigError([f"{path}: extends: a chain of more than {MAX_EXTENDS} plant files "
                                f"(the first: {seen[0] if seen else path}); a plant extends a few at most"])
-        base = _load(base_path, seen + (path.resolve(),))
+        try:
+            base = _load(base_path, seen + (path.resolve(),))
+        except ConfigError as error:   # the parent's problem, seen from the file that extends it
+            raise ConfigError([problem if problem.startswith(f"{path}: extends") else f"{path}: extends: {problem}"
+                               for problem in error.problems]) from None
         if base.model != model:
             check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
         parameters.update(base.parameters)

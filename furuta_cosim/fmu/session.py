@@ -137,7 +137,9 @@ def _read(path: str, _stamp: tuple) -> ModelDescription:
 
 def model_description(fmu: str | Path) -> ModelDescription:
     """The FMU's model description, read once per file version in this process (do not modify)."""
-    status = Path(fmu).stat()
+    from furuta_cosim.inputs import regular
+
+    status = regular(fmu).stat()
     return _read(str(fmu), (status.st_mtime_ns, status.st_size))
 
 

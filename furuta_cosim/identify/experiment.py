@@ -746,13 +746,9 @@ def read_csv(path: Path, columns: list[str], header: int, delimiter: str = ",") 
     whole and parsed by numpy: about 3.5 times the file's size in memory at most (the bytes,
     numpy's parse, the table and the columns); a bad file is then read again line by line to
     name the first bad line."""
-    try:
-        size = path.stat().st_size
-        if size > MAX_CSV_BYTES:
-            raise ConfigError([f"{path}: larger than {MAX_CSV_BYTES // 1_000_000} MB"])
-        raw = path.read_bytes()
-    except OSError as error:
-        raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
+    from furuta_cosim.inputs import read_input
+
+    raw = read_input(path, MAX_CSV_BYTES, beyond="more than a log this reads")
     if b"\x00" in raw:
         raise ConfigError([f"{path}: not a text file (it holds NUL bytes)"])
     if raw.startswith(b"\xef\xbb\xbf"):

@@ -46,12 +46,9 @@ class Fit:
 
 
 def _load_json(path: Path):
-    try:
-        raw = path.read_bytes()
-    except OSError as error:
-        raise ConfigError([f"{path}: cannot be read ({error.__class__.__name__})"]) from None
-    if len(raw) > 10_000_000:
-        raise ConfigError([f"{path}: larger than 10 MB: not a fit.json of identify"])
+    from furuta_cosim.inputs import read_input
+
+    raw = read_input(path, 10_000_000, beyond="not a fit.json of identify")
     if _depth(raw) > MAX_JSON_DEPTH:
         raise ConfigError([f"{path}: nested more than {MAX_JSON_DEPTH} levels deep: not a "
                            "fit.json of identify"])

@@ -136,6 +136,8 @@ def home(board: Board, plant, output: str | Path, *, timeout: float = 20.0, peri
     if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (
             math.isfinite(timeout) and 0 < timeout <= MAX_DURATION):
         raise ConfigError([f"timeout: expected seconds in (0, {MAX_DURATION:g}], got {timeout}"])
+    if timeout < period:
+        raise ConfigError([f"timeout: {timeout:g} s is shorter than one sample of the homing loop ({period:g} s)"])
     return run_rig(Homing(DampDown(*pendulum(plant.parameters)), period), board, plant, output,
                    duration=timeout, zero=False, log=log)
 

@@ -324,7 +324,12 @@ def read_result(request: Path, scenarios: list[TrialScenario], metrics) -> dict:
     request_file = request / "request.json"
     if request_file.is_file() and path.stat().st_mtime < request_file.stat().st_mtime - 1.0:
         raise ConfigError([f"{where}: older than its request ({request_file.name}): not this trial's result"])
-    text = path.read_text(encoding="utf-8", errors="strict")
+    from furuta_cosim.inputs import read_input
+
+    try:
+        text = read_input(path, MAX_RESULT_BYTES).decode("utf-8", errors="strict")
+    except UnicodeDecodeError as error:
+        raise ConfigError([f"{where}: not UTF-8 text (byte {error.start}): the rig side wrote it so"]) from None
     from furuta_cosim.identify.variants import _depth   # the one count of nesting (fit.json's too)
 
     if _depth(text.encode("utf-8")) > MAX_NESTING:

@@ -1,0 +1,82 @@
+"""The sixth hostile round's corpus: each case on the newest surfaces is one clear line (exit 2)
+or the documented verdict, never a traceback, a hang or a silent wrong answer."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from furuta_cosim.errors import ConfigError
+
+from helpers import one_line, run_cli
+
+
+# -- a plant file's parent (extends:) is named from the file that extends it ----------------------
+
+def _child(tmp_path, parent: str) -> str:
+    path = tmp_path / "child.yaml"
+    path.write_text(f"model: furuta\nextends: {parent}\ndescription: extends a parent\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("parent,expected", [
+    ("nosuch.yaml", "nosuch.yaml: file not found"),
+    ("folder.yaml", "folder.yaml: a folder, not a file"),
+    ("notplant.yaml", "notplant.yaml: model: missing"),
+    ("la.yaml", "'la.yaml': a loop of symbolic links"),
+    ('"a\\0b.yaml"', "b.yaml': a loop of symbolic links or not a usable file name"),
+])
+def test_a_parent_that_is_not_a_plant_is_named_from_its_child(tmp_path, capsys, parent, expected):
+    (tmp_path / "folder.yaml").mkdir()
+    (tmp_path / "notplant.yaml").write_text("description: no model\n")
+    os.symlink(tmp_path / "lb.yaml", tmp_path / "la.yaml")
+    os.symlink(tmp_path / "la.yaml", tmp_path / "lb.yaml")
+    line = one_line(capsys, "simulate", "paper-step", "--plant", _child(tmp_path, parent), "-o", str(tmp_path / "o"))
+    assert line.startswith(f"error: {tmp_path / 'child.yaml'}: extends: ") and line.endswith(expected) or \
+        expected in line, line
+    assert line.startswith(f"error: {tmp_path / 'child.yaml'}: extends: "), line
+
+
+# -- the rig's commands on a plant that is not a Furuta pendulum ----------------------------------
+
+@pytest.mark.parametrize("argv", [["rig", "home", "--board", "virtual:fast", "--plant", "toy"],
+                                  ["rig", "check-signs", "--board", "virtual:fast", "--plant", "toy"],
+                                  ["rig", "run", "lqr-qube", "--board", "virtual:fast", "--plant", "toy",
+                                   "--duration", "1"]])
+def test_a_rig_command_on_another_models_plant_is_one_line(tmp_path, capsys, argv):
+    line = one_line(capsys, *argv, *(["-o", str(tmp_path / "o")] if argv[1] != "check-signs" else []))
+    assert "--plant toy: a linear plant; the boards here run a Furuta pendulum" in line
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_rig_homes_timeout_names_itself(tmp_path, capsys):
+    line = one_line(capsys, "rig", "home", "--board", "virtual:fast", "--timeout", "0.001", "-o", str(tmp_path / "o"))
+    assert "--timeout: 0.001 s is shorter than one sample of the homing loop" in line
+
+
+# -- export-ssp of a controller of another model, or of a loop that is unstable as exported -------
+
+def test_export_ssp_of_another_models_controller_is_one_line(tmp_path, capsys):
+    line = one_line(capsys, "export-ssp", "qube-step", "--controller", "toy-classical", "-o", str(tmp_path / "t.ssp"))
+    assert "controller: " in line and "K: expected 5 values per row" in line
+    assert not (tmp_path / "t.ssp").exists()
+
+
+def test_export_ssp_says_when_the_loop_it_writes_is_unstable(tmp_path, capsys):
+    code, out, _ = run_cli(capsys, "export-ssp", "paper-step", "--controller", "lqr-qube", "-o", str(tmp_path / "u.ssp"))
+    assert code == 0 and "WARNING controller lqr-qube on plant furuta: the loop this archive holds is UNSTABLE" in out
+    assert "largest eigenvalue 1.004" in out
+    code, out, _ = run_cli(capsys, "export-ssp", "paper-step", "--controller", "lqr-paper", "-o", str(tmp_path / "s.ssp"))
+    assert code == 0 and "WARNING" not in out
+
+
+# -- an external rig's result that is not UTF-8 is the rig side's, in one line --------------------
+
+def test_a_result_that_is_not_utf8_is_refused_naming_the_file(tmp_path):
+    from furuta_cosim.tuning.trials import read_result
+
+    (tmp_path / "request.json").write_text("{}\n")
+    (tmp_path / "result.json").write_bytes(b'{"status": "ok", "reason": "\xff\xfe"}\n')
+    with pytest.raises(ConfigError, match=r"result.json: not UTF-8 text \(byte 28\): the rig side wrote it so"):
+        read_result(tmp_path, [], ["u.rms"])
