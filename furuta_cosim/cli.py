@@ -197,8 +197,12 @@ def cmd_analyze(args) -> int:
                 print(line)
     if args.plot:
         if analysis.running_margins is None:
-            print(f"no plots: the loop {'is unstable' if analysis.stable else 'has more than one input'}; "
-                  "margins and sensitivities are of a stable single-input loop", file=sys.stderr)
+            running = analysis.sampled if analysis.sampled is not None else analysis
+            why = ("the loop is unstable" if not analysis.stable else
+                   f"the loop that runs (sampled at {analysis.sampled.period:g}) is unstable" if not running.stable else
+                   "the loop has more than one input" if c.Dc.shape[0] != 1 or model.B.shape[1] != 1 else
+                   "its margins could not be computed")
+            print(f"no plots: {why}; margins and sensitivities are of a stable single-input loop", file=sys.stderr)
         else:
             from furuta_cosim.report.loop import plot_loop
 

@@ -187,8 +187,8 @@ def test_a_jittered_clock_is_resampled_when_asked(tmp_path):
 def test_a_gap_in_a_resampled_log_is_refused_with_its_time(tmp_path):
     t = [0.002 * k for k in range(50)] + [0.2 + 0.002 * k for k in range(50)]   # 0.102 s without a sample
     rows = [(a, 1.0, 0.0) for a in t]
-    with pytest.raises(ConfigError, match=r"resample.gap: log.csv: line 52: 0.102 s without a sample "
-                                          r"\(from t = 0.098 s\), more than the 0.02 s"):
+    with pytest.raises(ConfigError, match=r"resample: log.csv: line 52: 0.102 s without a sample "
+                                          r"\(from t = 0.098 s\), more than the 0.02 s a gap may last \(10 periods"):
         load_experiment(_jittered(tmp_path, rows, "resample: 0.002\n"))
 
 

@@ -80,3 +80,55 @@ def test_a_result_that_is_not_utf8_is_refused_naming_the_file(tmp_path):
     (tmp_path / "result.json").write_bytes(b'{"status": "ok", "reason": "\xff\xfe"}\n')
     with pytest.raises(ConfigError, match=r"result.json: not UTF-8 text \(byte 28\): the rig side wrote it so"):
         read_result(tmp_path, [], ["u.rms"])
+
+
+# -- a closed-loop log's law and resampling: the cause named, not the plant's step size ---------
+
+@pytest.fixture(scope="module")
+def pd(tmp_path_factory):
+    from furuta_cosim.identify.foreign import pd_log
+
+    folder = tmp_path_factory.mktemp("pd")
+    return pd_log(folder, seed=0)
+
+
+def _variant(pd, tmp_path, text: str):
+    path = pd.parent / f"{tmp_path.name}.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_a_law_whose_filter_is_unstable_at_the_period_is_named(pd, tmp_path):
+    from furuta_cosim.identify.experiment import load_experiment
+
+    text = pd.read_text().replace("cutoff: 50.0\n      method: backward", "cutoff: 1500.0\n      method: forward")
+    with pytest.raises(ConfigError) as refused:
+        load_experiment(_variant(pd, tmp_path, text))
+    line = str(refused.value)
+    assert "loop.law.derivative: the law's filter is unstable at the log's period" in line
+    assert "w T = 3; forward Euler is stable for w T < 2 only" in line and "n_substeps" not in line
+
+
+@pytest.mark.parametrize("resample,key", [("{period: 1.0e-9, gap: 1}", "resample.period: 1e-09 s over the window's"),
+                                          ("{period: 1.0e-9}", "resample.period: 1e-09 s over the window's"),
+                                          ("{period: 0.0001}", "resample: pd.csv: line 3: 0.002 s without")])
+def test_a_resample_period_typed_wrong_is_named_and_allocates_nothing(pd, tmp_path, resample, key):
+    from furuta_cosim.identify.experiment import load_experiment
+
+    text = pd.read_text()
+    text = text[:text.index("loop:")] + f"resample: {resample}\n"
+    with pytest.raises(ConfigError) as refused:
+        load_experiment(_variant(pd, tmp_path, text))
+    assert key in str(refused.value) and "resample.gap" not in str(refused.value)
+
+
+def test_analyze_plot_of_a_loop_unstable_when_sampled_says_so(tmp_path, capsys):
+    from helpers import ROOT
+
+    text = (ROOT / "scenarios" / "controllers" / "lqr-paper.yaml").read_text()
+    text = text.replace("time: discrete\nperiod: 0.002", "time: continuous\nperiod: 0.2").replace("name: lqr-paper",
+                                                                                                   "name: slow")
+    (tmp_path / "slow.yaml").write_text(text)
+    code, _, err = run_cli(capsys, "analyze", str(tmp_path / "slow.yaml"), "--plot", str(tmp_path / "plots"))
+    assert code != 0
+    assert "no plots: the loop that runs (sampled at 0.2) is unstable" in err

@@ -45,6 +45,9 @@ _LOOP_KEYS = ("controller", "law", "reference", "feedforward", "rate_filter", "v
               "late", "compute", "mode")
 _LAW_KEYS = ("K", "F", "period")
 MAX_DELAY_SAMPLES = 10   # a loop's delay, in samples of its log, at most
+# samples a resampled log may have: about the rows of the largest log read (MAX_CSV_BYTES of
+# short rows); a finer grid is a period typed wrong, not a finer log
+MAX_RESAMPLED = 5_000_000
 # a closed-loop log whose clock jitters is replayed at its instants; a step longer than this many
 # of its typical steps is a gap in the log (the controller's commands there are not logged)
 MAX_JITTER_STEPS = 10
@@ -466,11 +469,20 @@ def _resampled(check: Checker, top: dict, table: dict, time_column: str, first: 
             filled[~np.maximum.accumulate(known)] = np.nan   # nothing before: stays empty
             table = {**table, name: filled}
     t = np.asarray(table[time_column][first:last], dtype=float)
+    samples = (t[-1] - t[0]) / period if len(t) else 0.0
+    if samples > MAX_RESAMPLED:
+        check.fail("resample.period", f"{period:g} s over the window's {t[-1] - t[0]:g} s is {samples:.3g} samples "
+                                      f"(at most {MAX_RESAMPLED:,}): give the period the log is meant to be on "
+                                      f"(its median step is {float(np.median(np.diff(t))):g} s)")
+        return table, first, last
     steps = np.diff(t)
     if np.any(steps > gap):
         k = int(np.argmax(steps > gap))
-        check.fail("resample.gap", f"{csv.name}: line {table[LINE][first + k + 1]}: {steps[k]:g} s without a "
-                                   f"sample (from t = {t[k]:g} s), more than the {gap:g} s a gap may last")
+        key, said = (("resample.gap", f"the {gap:g} s a gap may last") if "gap" in section else
+                     ("resample", f"the {gap:g} s a gap may last (10 periods, unless resample names "
+                                  "its own gap: SECONDS)"))
+        check.fail(key, f"{csv.name}: line {table[LINE][first + k + 1]}: {steps[k]:g} s without a "
+                        f"sample (from t = {t[k]:g} s), more than {said}")
         return table, first, last
     grid = t[0] + period * np.arange(int(math.floor((t[-1] - t[0]) / period + 1e-9)) + 1)
     held = set()

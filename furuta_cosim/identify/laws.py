@@ -173,6 +173,8 @@ def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
     if A.shape[0] > MAX_ORDER:
         check.fail("loop.law.A", f"{A.shape[0]} states: at most {MAX_ORDER}")
         return None
+    if not _stable(check, A, state_space, entry, period):
+        return None
     whole = {}
     for s in sources:
         if s in constants:
@@ -205,6 +207,30 @@ def read_law(check: Checker, entry, period: float, table, columns, keep: slice,
             _agrees(check, law, law.logged, table[name][keep], name, voltage, feedforward, csv_name, lines[keep],
                     period)
     return law
+
+
+def _stable(check: Checker, A: np.ndarray, state_space: bool, entry: dict, period: float) -> bool:
+    """A law whose own dynamics grow (a filter discretized unstably, an unstable A) is refused
+    naming them: replayed, its output would grow without bound and the plant's integration
+    diverge, which would blame the plant's step size instead."""
+    if not A.size:
+        return True
+    radius = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if radius <= 1.0 + 1e-9:
+        return True
+    if state_space:
+        check.fail("loop.law.A", f"its largest eigenvalue's modulus is {radius:.4g}, above 1: the law's state grows "
+                                 "on its own, whatever it reads (a discrete A is stable inside the unit circle)")
+    else:
+        derivative = entry.get("derivative") if isinstance(entry.get("derivative"), dict) else {}
+        method, cutoff = derivative.get("method", "backward"), derivative.get("cutoff")
+        said = (f" ({method} at cutoff {cutoff:g} rad/s and period {period:g} s: w T = {cutoff * period:.3g}"
+                + ("; forward Euler is stable for w T < 2 only" if method == "forward" else "") + ")"
+                if isinstance(cutoff, (int, float)) and not isinstance(cutoff, bool) else "")
+        check.fail("loop.law.derivative", f"the law's filter is unstable at the log's period{said}: its state grows "
+                                          f"on its own (largest eigenvalue {radius:.4g}); use method backward or "
+                                          "bilinear, or the cutoff the controller ran with")
+    return False
 
 
 def _terms(check: Checker, entry: dict, period: float, conversions, columns):
