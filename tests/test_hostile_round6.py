@@ -132,3 +132,96 @@ def test_analyze_plot_of_a_loop_unstable_when_sampled_says_so(tmp_path, capsys):
     code, _, err = run_cli(capsys, "analyze", str(tmp_path / "slow.yaml"), "--plot", str(tmp_path / "plots"))
     assert code != 0
     assert "no plots: the loop that runs (sampled at 0.2) is unstable" in err
+
+
+# -- a rig's result that cannot be true is not learned from -------------------------------------
+
+GOOD = {"u.rms": 0.5, "u.peak_abs": 1.0, "error.IAE": 0.4, "theta1.max_abs": 0.01}
+
+
+@pytest.fixture(scope="module")
+def qube_step():
+    from furuta_cosim.cosim import prepare
+    from furuta_cosim.scenario import load_scenario
+
+    return prepare(load_scenario("qube-step"))
+
+
+@pytest.mark.parametrize("change,expected", [
+    ({"u.rms": 1e308}, "u.rms: 1e+308 V is above the amplifier's limit (10 V)"),
+    ({"u.rms": 5e-324}, "u.rms: 4.941e-324 V: a trial that held the pendulum needs a command"),
+    ({"u.rms": 1e-300}, "u.rms: 1e-300 V: a trial that held the pendulum needs a command"),
+    ({"error.IAE": 1e308}, "error.IAE: 1e+308 is more than the arm's range and the reference allow"),
+    ({"u.peak_abs": 0.2}, "u.peak_abs: 0.2 is below u.rms (0.5): no signal's peak is below its RMS"),
+    ({"theta1.max_abs": 100.0}, "theta1.max_abs: 100 rad: the pendulum's angle, wrapped, is within pi"),
+    ({"theta0.max_abs": 3.0}, "theta0.max_abs: 3 rad is beyond the supervisor's 2 rad"),
+    ({k: 0.0 for k in GOOD}, "every metric is 0"),
+])
+def test_an_absurd_rig_result_is_named_field_by_field(qube_step, change, expected):
+    from furuta_cosim.tuning.plausible import implausible
+
+    assert implausible(GOOD, qube_step) == []
+    problems = implausible({**GOOD, **change}, qube_step)
+    assert problems and expected in problems[0], problems
+
+
+def test_a_trial_the_supervisor_tripped_may_pass_the_arms_limit_but_is_never_feasible(tmp_path, qube_step):
+    from furuta_cosim.tuning.plausible import implausible
+
+    assert implausible({**GOOD, "theta0.max_abs": 2.01}, qube_step, finished=False) == []
+
+
+def test_the_tuning_stops_on_an_absurd_result_naming_the_file_and_field(tmp_path, qube_step):
+    from furuta_cosim.errors import RunStopped
+    from furuta_cosim.tuning.rig import _believable
+    from furuta_cosim.tuning.trials import TrialScenario
+
+    scenarios = [TrialScenario("qube-step", qube_step, None, None)]
+    with pytest.raises(RunStopped) as stopped:
+        _believable(tmp_path, {"qube-step": {**GOOD, "u.rms": 1e308}}, scenarios, {}, {"qube-step"})
+    assert f"{tmp_path / 'result.json'}: scenarios.qube-step.metrics: u.rms: 1e+308 V" in str(stopped.value)
+    assert "is not learned from" in str(stopped.value)
+
+
+@pytest.mark.parametrize("field", ["metrics", "seconds"])
+def test_a_four_hundred_digit_number_is_refused_in_one_line(tmp_path, field):
+    from test_rig_tuning import METRICS, _external_request
+    from furuta_cosim.tuning.trials import read_result
+
+    request, scenarios = _external_request(tmp_path)
+    huge = "9" * 400
+    metrics = ", ".join(f'"{k}": {huge if k == "u.rms" and field == "metrics" else v}' for k, v in METRICS.items())
+    seconds = huge if field == "seconds" else "1"
+    (request / "result.json").write_text('{"status": "finished", "seconds": ' + seconds +
+                                         ', "scenarios": {"qube-step": {"metrics": {' + metrics + '}}}}')
+    with pytest.raises(ConfigError) as refused:
+        read_result(request, scenarios, sorted(METRICS))
+    assert ("u.rms: expected a finite number" if field == "metrics" else "seconds: expected a finite number") \
+        in str(refused.value)
+
+
+def test_the_rig_sides_reason_reaches_the_terminal_escaped(tmp_path):
+    from test_rig_tuning import METRICS, _external_request
+    from furuta_cosim.tuning.trials import read_result
+
+    request, scenarios = _external_request(tmp_path)
+    (request / "result.json").write_text('{"status": "tripped", "reason": "\\u001b[2J\\u001b]0;owned\\u0007 fell", '
+                                         '"scenarios": {"qube-step": {"metrics": ' + __import__("json").dumps(METRICS)
+                                         + '}}}')
+    found = read_result(request, scenarios, sorted(METRICS))
+    assert "\x1b" not in found["reason"] and "\x07" not in found["reason"]
+    assert found["reason"] == "\\x1b[2J\\x1b]0;owned\\x07 fell"
+
+
+def test_a_tripped_trial_with_metrics_is_not_feasible(tmp_path):
+    from test_rig_tuning import _spec, _trials
+    from furuta_cosim.tuning.rig import Fidelity, RigEvaluator
+    from furuta_cosim.tuning.spec import load_spec
+    from furuta_cosim.tuning.trials import TrialResult
+
+    spec = load_spec(_spec(tmp_path))
+    evaluator = RigEvaluator(spec, _trials(), tmp_path / "run", Fidelity(spec, []))
+    labels = [label for label, _, _ in evaluator.runs()]
+    result = TrialResult("tripped", "the arm reached its limit", {}, {}, {}, 1.0)
+    outcome = evaluator._judged(result, {label: dict(GOOD) for label in labels}, {}, {}, [])
+    assert not outcome.feasible and outcome.constraints["trial"] == "tripped: the arm reached its limit"

@@ -134,6 +134,8 @@ class RigEvaluator(Evaluator):
                     failures[s.label] = trace.failure
             elif s.label not in metrics and s.label not in failures:
                 failures[s.label] = "not run: " + (result.reason if result.status != "finished" else "no data")
+        _believable(folder, metrics, scenarios, result.traces,
+                    {s.label for s in scenarios if result.status == "finished" and s.label not in failures})
         info = {"folder": f"trials/{name}", "status": result.status, "reason": result.reason,
                 "failures": failures, "seconds": result.seconds}
         if result.hold_offset is not None:
@@ -186,6 +188,11 @@ class RigEvaluator(Evaluator):
             if any(slack > 0 for slack in found):
                 violated.append(label)
             scores.append([self._criterion(c, label, values) for c in spec.objective.criteria])
+        if result.status != "finished" and not violated:   # a tripped trial is never feasible
+            violation += 1.0
+            constraints["trial"] = f"{result.status}: {result.reason}"
+            slacks.append(math.inf)
+            violated.append("trial")
         outcome = self._outcome(scores, violation, constraints, shown, slacks, violated)
         outcome.trial = json_safe(info)
         if result.status != "finished":
@@ -657,4 +664,21 @@ def rig_identity(trials) -> dict:
         found["plant_sha256"] = content_sha256(plant)
     return found
 
+
+def _believable(folder: Path, metrics: dict, scenarios, traces: dict, finished: set) -> None:
+    """Stop the tuning (RunStopped) on a trial whose metrics cannot be what a rig measured
+    (tuning/plausible.py), naming the file and the field: it learns nothing from them."""
+    from furuta_cosim.tuning.plausible import implausible
+
+    for s in scenarios:
+        values = metrics.get(s.label)
+        if values is None:
+            continue
+        problems = implausible(values, s.prepared, s.label in finished)
+        if problems:
+            where = (f"{folder / 'result.json'}: scenarios.{s.label}.metrics" if s.label not in traces
+                     else f"{folder}: {s.label}'s log")
+            raise RunStopped(f"{where}: {problems[0]}" + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
+                             + ": a rig's result that cannot be true is not learned from; check the rig side, "
+                             "then resume")
 

@@ -391,6 +391,8 @@ def read_result(request: Path, scenarios: list[TrialScenario], metrics) -> dict:
         experiment, data = _inside(request, entry["experiment"], f"{key}.experiment")
         traces[label] = trace_of(experiment, labels[label].prepared, f"{key}.experiment")
         files += [experiment.relative_to(request).as_posix(), data.relative_to(request).as_posix()]
+    reason = _printable(reason)
+    failures = {_printable(k): _printable(v) for k, v in failures.items()}
     return {"status": status, "reason": reason, "failures": dict(failures), "traces": traces,
             "metrics": found, "seconds": float(seconds), "files": files}
 
@@ -454,7 +456,18 @@ def trace_of(path: Path, prepared, key: str):
 
 
 def _finite(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:   # an integer of hundreds of digits: no measurement
+        return False
+
+
+def _printable(text: str) -> str:
+    """Text from the rig side with its control characters (a terminal's escape codes: they
+    clear a screen or retitle a window) shown as escapes, never sent to the terminal."""
+    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in text)
 
 
 MAX_NESTING = 32   # levels of brackets a result.json may nest
