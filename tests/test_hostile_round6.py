@@ -225,3 +225,42 @@ def test_a_tripped_trial_with_metrics_is_not_feasible(tmp_path):
     result = TrialResult("tripped", "the arm reached its limit", {}, {}, {}, 1.0)
     outcome = evaluator._judged(result, {label: dict(GOOD) for label in labels}, {}, {}, [])
     assert not outcome.feasible and outcome.constraints["trial"] == "tripped: the arm reached its limit"
+
+
+# -- the paced virual board stands in for hardware: a group's signal leaves it safe, recorded ---
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sent", ["SIGINT", "SIGINT burst", "SIGTERM"])
+def test_a_group_signal_leaves_the_paced_board_at_0_v_with_its_record(tmp_path, sent):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import numpy as np
+
+    from furuta_cosim.rig.virtual import read_board_log
+
+    out = tmp_path / "run"
+    process = subprocess.Popen([sys.executable, "-m", "furuta_cosim", "rig", "run", "swingup-qube", "--board", "virtual",
+                                "--duration", "30", "-o", str(out)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+    lines = []
+    for line in process.stderr:   # its progress: the board is running and the motor driven
+        lines.append(line)
+        if line.strip().startswith("rig:"):
+            break
+    assert process.poll() is None, "".join(lines)
+    number = signal.SIGTERM if sent == "SIGTERM" else signal.SIGINT
+    for _ in range(5 if sent == "SIGINT burst" else 1):
+        os.killpg(process.pid, number)
+        time.sleep(0.02)
+    started = time.monotonic()
+    _, err = process.communicate(timeout=60)
+    err = "".join(lines) + err
+    assert time.monotonic() - started < 15
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert "ran its 30 s" not in err      # it was stopped
+    board = read_board_log(out / "board.csv")
+    assert board["enabled"][-1] == 0.0 and board["V_applied"][-1] == 0.0
+    assert len(board["t"]) > 100 and np.all(np.isfinite(board["theta1"]))

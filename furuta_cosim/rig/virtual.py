@@ -471,7 +471,17 @@ _GRACE = 0.5  # s the board runs on after its watchdog expired with its runner g
 
 def _serve(arguments, settings, shared, log: str, parent: int) -> None:
     """The board's process: the rig in real time until told to stop, or until its runner is
-    gone and the watchdog has held it at 0 V for a while; then its log."""
+    gone and the watchdog has held it at 0 V for a while; then its log.
+
+    It stands in for hardware, which a terminal's Ctrl-C does not reach: SIGINT is ignored (the
+    runner hears it, writes 0 V and tells the board to stop). SIGTERM (a scheduler's, to the
+    whole group) stops it as the runner's stop does. Every ending leaves it at 0 V with the
+    amplifier off, and its record (``board.csv``) complete to that."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ended = []
+    signal.signal(signal.SIGTERM, lambda *_: ended.append(True))
     rig = VirtualRig(*arguments, **settings)
     seen = {slot: 0.0 for slot in (_WRITES, _ARMED, _RELOADS, _ZERO)}
     clock = Clock()
@@ -486,8 +496,8 @@ def _serve(arguments, settings, shared, log: str, parent: int) -> None:
         while stop_at is None or rig.t < stop_at:
             k += 1
             now = clock.wait_until(t0 + k * rig.step) - t0
-            if stop_at is None and shared[_STOP] != 0.0:  # told to stop: what the runner wrote last, then
-                stop_at = now + rig.delay + 2 * rig.step  # long enough for the log to show it applied
+            if stop_at is None and (shared[_STOP] != 0.0 or ended):  # told to stop: what the runner wrote
+                stop_at = now + rig.delay + 2 * rig.step  # last, then long enough for the log to show it
             if shared[_ZERO] != seen[_ZERO]:
                 seen[_ZERO] = shared[_ZERO]
                 rig.zero_encoders()
@@ -505,7 +515,7 @@ def _serve(arguments, settings, shared, log: str, parent: int) -> None:
                     # time had passed here (the runner held up between its stamp and its signal)
                     shared[slot + 2] = rig.write(shared[slot + 1], at=shared[slot])
                 seen[_WRITES] = float(latest)
-            rig.enabled = shared[_ENABLE] == 1.0 and not rig.expired
+            rig.enabled = shared[_ENABLE] == 1.0 and not rig.expired and not ended
             rig.advance(now)
             shared[_EXPIRED] = float(rig.expired)
             publish(rig, shared)
@@ -515,9 +525,14 @@ def _serve(arguments, settings, shared, log: str, parent: int) -> None:
                     if rig.t - orphaned_at > _GRACE:
                         break
     finally:
-        if log:
-            rig.save_log(Path(log))
-        rig.close()
+        try:   # whatever ended it: 0 V, the amplifier off, and the record shows them applied
+            rig.enabled = False
+            rig.write(0.0, at=rig.t)
+            rig.advance(rig.t + rig.delay + 2 * rig.step)
+        finally:
+            if log:
+                rig.save_log(Path(log))
+            rig.close()
 
 
 def publish(rig: VirtualRig, shared) -> None:
