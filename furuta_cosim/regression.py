@@ -651,7 +651,7 @@ def _run_all(jobs, workers: int, progress) -> list[RunResult]:
                 if progress:
                     progress(len(results), total)
         return results
-    from furuta_cosim.cosim.worker import evaluate_here, start_pool
+    from furuta_cosim.cosim.worker import evaluate_here, start_pool, stop_pool
 
     pool = start_pool(min(workers, total))
     try:
@@ -663,7 +663,7 @@ def _run_all(jobs, workers: int, progress) -> list[RunResult]:
                 progress(k + 1, total)
         return results
     finally:
-        pool.shutdown(cancel_futures=True)
+        stop_pool(pool)
 
 
 # ---------------------------------------------------------------------------------------------

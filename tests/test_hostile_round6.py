@@ -264,3 +264,38 @@ def test_a_group_signal_leaves_the_paced_board_at_0_v_with_its_record(tmp_path, 
     board = read_board_log(out / "board.csv")
     assert board["enabled"][-1] == 0.0 and board["V_applied"][-1] == 0.0
     assert len(board["t"]) > 100 and np.all(np.isfinite(board["theta1"]))
+
+
+# -- a group's signals during a fit's and a tuning's worker processes ------------------------------
+
+@pytest.mark.slow
+@pytest.mark.parametrize("part", ["identify", "tune"])
+def test_a_group_signal_during_workers_ends_the_run_cleanly_and_resume_gives_the_whole(tmp_path, part):
+    """The group's burst of Ctrl-C and a SIGTERM at half the run (tools/bench_signals.py does
+    it 20 times each): the run ends within 10 s, no traceback, and what it says to do next
+    (--resume, or the same command) gives the uninterrupted result."""
+    import signal
+    import sys
+
+    from helpers import ROOT
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    import bench_signals
+
+    command, result = bench_signals._commands(part, tmp_path)
+    import subprocess
+    import time
+
+    started = time.monotonic()
+    assert subprocess.run(command(tmp_path / "whole"), capture_output=True).returncode == 0
+    length = time.monotonic() - started
+    whole = result(tmp_path / "whole")
+    for number, burst in ((signal.SIGINT, 5), (signal.SIGTERM, 1)):
+        out = tmp_path / f"cut-{number}"
+        found = bench_signals._one(command, out, length / 2, number, burst)
+        assert found["signalled"] and found["code"] in (130, 143), found
+        assert found["seconds"] < bench_signals.LIMIT and not found["traceback"], found
+        again = subprocess.run(command(out) + (["--resume"] if "--resume" in found["last"] else []),
+                               capture_output=True, text=True)
+        assert again.returncode == 0, again.stderr
+        assert result(out) == whole

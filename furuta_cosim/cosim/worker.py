@@ -63,7 +63,13 @@ def _watch_parent(parent: int) -> None:
 
 def _start_worker(parent: int, setup, setup_args) -> None:
     import multiprocessing.util
+    import signal
 
+    # a signal is the main process's to decide on: a terminal's Ctrl-C and a scheduler's SIGTERM
+    # reach the whole group, and a worker that died of one inside the pool's queue lock (the
+    # handler it inherited at the fork) left the main process waiting for ever
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _watch_parent(parent)
     # a pool's worker ends by os._exit, without atexit handlers; multiprocessing's own exit
     # finalizers do run there. They remove the extracted FMUs and nothing more: unloading a
@@ -90,6 +96,26 @@ def start_pool(workers: int, setup=None, setup_args: tuple = ()):
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+
+def stop_pool(pool, grace: float = 5.0) -> int:
+    """End ``pool`` within ``grace`` seconds: its pending tasks cancelled, its workers given
+    the grace to finish the task in hand, then killed (a worker blocked writing a result that
+    nobody will read never ends by itself). Returns how many had to be killed."""
+    import time
+
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + grace
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+    killed = 0
+    for process in processes:
+        if process.is_alive():
+            process.kill()
+            process.join(1.0)
+            killed += 1
+    return killed
 
 
 _ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}")

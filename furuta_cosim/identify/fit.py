@@ -136,7 +136,10 @@ class Runner:
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+            from furuta_cosim.cosim.worker import stop_pool
+
+            stop_pool(self._pool)
+            self._pool = None
         if self._client is not None:
             self._client.close()
         if self._cluster is not None:

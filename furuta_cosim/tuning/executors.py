@@ -133,7 +133,9 @@ class Processes(_Executor):
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+            from furuta_cosim.cosim.worker import stop_pool
+
+            stop_pool(self._pool)
             self._pool = None
 
 
