@@ -658,6 +658,7 @@ def read_ssp(path: str | Path, parameter_set: str | None = None, *, control_inpu
         source, ssv = sets[k]
         set_name = names_of[k]
         parameters = _set_values(ssv, source, md, fail, archive.warnings)
+        accepted(target, parameters, fail, source, chosen, set_name)
     stop, step = _experiment(archive.root, fail)
     carried = {}
     for kind in ("scenario", "controller"):
@@ -734,6 +735,21 @@ def _set_values(ssv, entry: str, md, fail, warnings: list | None = None) -> dict
                               "(no conversion is applied: give it in the FMU's unit)")
         values[name] = value
     return values
+
+
+def accepted(fmu: Path, parameters: dict, fail, entry: str, component: str, name: str) -> None:
+    """The FMU of ``component`` takes the set ``name`` (read from ``entry``): it is started with
+    it once, and what it refuses (a resistance below 0: its own checks) is one line naming the
+    archive and the entry, not the extracted copy it was run from."""
+    from furuta_cosim.errors import FmuError
+    from furuta_cosim.fmu.session import PlantSession
+
+    try:
+        with PlantSession.open(fmu) as session:
+            session.reset(parameters)
+    except FmuError as error:
+        said = str(error).replace(str(fmu), f"component {component}'s FMU")
+        raise fail(entry, f"parameter set {name!r}: the FMU of component {component} refuses it: {said}") from None
 
 
 def _experiment(root, fail) -> tuple[float | None, float | None]:

@@ -35,7 +35,7 @@ import numpy as np
 
 from furuta_cosim.errors import ConfigError, FmuError
 from furuta_cosim.ssp import (ENTRY, SSC, SSD, _experiment, _is_real, _set_values, _unit_of, _variables,
-                              open_archive, schema_problems)
+                              accepted, open_archive, schema_problems)
 
 # a run of more steps than this is refused before it starts (memory: a row per step)
 MAX_STEPS = 10_000_000
@@ -153,6 +153,7 @@ def load_system(path: str | Path, parameter_set: str | None = None, *,
             if source != ENTRY:
                 documents[source] = archive.read(source)
             parameters = _set_values(ssv, source, md, fail, archive.warnings)
+            accepted(target, parameters, fail, source, name, chosen)
         parts[name] = Part(name, target, md, kinds, parameters, chosen)
     if parameter_set is not None and not any(p.set_name == parameter_set for p in parts.values()):
         raise fail(None, f"no component binds a parameter set {parameter_set!r}")

@@ -299,3 +299,19 @@ def test_a_group_signal_during_workers_ends_the_run_cleanly_and_resume_gives_the
                                capture_output=True, text=True)
         assert again.returncode == 0, again.stderr
         assert result(out) == whole
+
+
+# -- an SSP's parameter value its FMU refuses is named by the archive and its entry ---------------
+
+@pytest.mark.parametrize("argv", [["simulate", "paper-step", "--plant"], ["simulate"]])
+def test_a_set_value_the_fmu_refuses_names_the_archive_entry(tmp_path, capsys, argv):
+    from furuta_cosim.ssp import export_ssp
+    from test_ssp import _replace, _rewritten
+
+    export_ssp("paper-step", "lqr-paper", tmp_path / "loop.ssp")
+    bad = _rewritten(tmp_path / "loop.ssp", tmp_path / "bad.ssp",
+                     _replace("resources/paper-calibrated.ssv", b'value="8.0" unit="Ohm"', b'value="-8.0" unit="Ohm"'))
+    line = one_line(capsys, *argv, str(bad), "-o", str(tmp_path / "o"))
+    assert f"{bad} (resources/paper-calibrated.ssv): parameter set 'paper-calibrated': the FMU of component plant " \
+           "refuses it" in line and "R_a = -8 must be > 0" in line
+    assert ".cache" not in line and "furuta-cosim/ssp/" not in line
