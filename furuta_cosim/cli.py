@@ -1270,7 +1270,14 @@ def main(argv: list[str] | None = None) -> int:
     stops = _FirstSignalStops()
     previous = stops.install()
     try:
-        code = args.handler(args)
+        try:
+            code = args.handler(args)
+        except RuntimeError as error:
+            # a signal's stop raised inside a class being made (a dataclass's field, during an
+            # import) comes out wrapped by Python: "Error calling __set_name__ ...": it is the stop
+            if isinstance(error.__cause__, KeyboardInterrupt):
+                raise error.__cause__ from None
+            raise
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return code
     except BrokenPipeError:

@@ -405,7 +405,9 @@ def tune_on_rig(spec, run_dir: str | Path, trials, *, method: str | None = None,
     if method == "safe" and not spec.baselines:
         raise ConfigError([f"{spec.source}: baselines: the safe method starts from a controller known "
                            "to be safe on the rig: name it as the first baseline"])
-    if resume and not (folder / "history.jsonl").is_file():
+    # a run stopped in its simulated fidelity, before its first trial, has its run.json and no
+    # history of trials yet: --resume continues it (the simulation resumes where it stopped)
+    if resume and not (folder / "history.jsonl").is_file() and not (folder / "run.json").is_file():
         raise ConfigError([f"resume: {folder} holds no tuning run (no history.jsonl)"])
     if not resume and (folder / "history.jsonl").exists():
         raise ConfigError([f"run_dir {folder}: holds a tuning run already; choose another folder or "
@@ -439,7 +441,8 @@ def tune_on_rig(spec, run_dir: str | Path, trials, *, method: str | None = None,
         fidelity = Fidelity(spec, sim_history.records, simulation)
         evaluator = RigEvaluator(spec, trials, folder, fidelity, log)
         evaluator.runs()
-        history = History(folder / "history.jsonl", resume, evaluator.space.bounds, log)
+        history = History(folder / "history.jsonl", resume and (folder / "history.jsonl").is_file(),
+                          evaluator.space.bounds, log)
         if len(history.records) > n_trials:
             raise ConfigError([f"resume: the run holds {len(history.records)} trials, more than the "
                                f"{n_trials} of `n_trials`"])
