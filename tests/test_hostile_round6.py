@@ -369,3 +369,17 @@ def test_a_rig_tuning_stopped_in_its_simulated_prior_resumes_to_the_whole(tmp_pa
         return [(r["index"], r["x"], r["objective"], r["feasible"])
                 for r in map(json.loads, (folder / "history.jsonl").read_text().splitlines())]
     assert trials(tmp_path / "cut") == trials(tmp_path / "whole") and len(trials(tmp_path / "whole")) == 3
+
+
+def test_a_command_column_scaled_wrong_is_named_not_blamed_on_the_step_size(tmp_path, capsys):
+    from helpers import synthetic_log
+
+    spec = synthetic_log(tmp_path)
+    experiment = tmp_path / "prbs.yaml"
+    experiment.write_text(experiment.read_text().replace("inputs: {V: {column: V, unit: V}}",
+                                                         "inputs: {V: {column: V, scale: 1000}}"))
+    code, _, err = run_cli(capsys, "identify", str(spec), "-o", str(tmp_path / "fit"))
+    line = err.strip().splitlines()[-1]
+    assert code == 2 and "Traceback" not in err
+    assert "prbs.yaml: inputs.V: reads 3000 V at t = 0 s, 300 times the amplifier's limit (10 V" in line
+    assert "n_substeps" not in line

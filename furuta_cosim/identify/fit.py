@@ -581,6 +581,7 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
     check_names(target, spec.experiments + spec.validation, tuple(p.name for p in spec.free),
                 str(spec.path))
     check_ranges(spec, target)
+    _commands_within_the_amplifier(spec, target)
     plant_values = _plant_values(target, [p.name for p in spec.free])
     items = unknowns(spec, plant_values)
     if resume is None and not force:   # a resumed run passed this check when it began
@@ -749,6 +750,39 @@ def far_line(entry: dict) -> str:
 
 def _far_lines(experiments, start_outputs, starts: dict) -> list[str]:
     return [f"{e['file']}: outputs.{e['output']}: {far_line(e)}" for e in far_columns(experiments, start_outputs, starts)]
+
+
+# a logged command beyond this many times the amplifier's limit is a column read in the wrong unit
+# or scale (mV as V: 1000 times), not a command: replayed, it diverges the plant's integration,
+# whose message then blames the step size
+BEYOND_AMPLIFIER = 3.0
+
+
+def _commands_within_the_amplifier(spec, target) -> None:
+    """A ConfigError for each log whose command column goes beyond BEYOND_AMPLIFIER times the
+    plant's amplifier limit (the plant file's limits.voltage or V_max), naming the column, the
+    first such sample and the factor."""
+    from furuta_cosim.fmu.plants import voltage_limit
+
+    if target.plant is None:
+        return
+    limit = voltage_limit(target.plant)
+    if not limit:
+        return
+    found = []
+    for e in spec.experiments + spec.validation:
+        if "V" not in e.inputs:
+            continue
+        values = np.atleast_1d(np.asarray(e.input_at("V"), dtype=float))
+        beyond = np.abs(values) > BEYOND_AMPLIFIER * limit
+        if np.any(beyond):
+            k = int(np.argmax(beyond))
+            when = f" at t = {e.t[k]:g} s" if k < len(e.t) else ""
+            found.append(f"{e.path}: inputs.V: reads {values[k]:.4g} V{when}, {abs(values[k]) / limit:.3g} times the "
+                         f"amplifier's limit ({limit:g} V, {target.plant.name}): a command beyond what the amplifier "
+                         "gives is a column in another unit or scale (inputs.V: unit, scale)")
+    if found:
+        raise ConfigError(found)
 
 
 def _no_delay_through_a_smoother(spec) -> None:
