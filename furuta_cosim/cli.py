@@ -388,6 +388,7 @@ def cmd_tune(args) -> int:
             raise ConfigError([f"{flag}: tunes with a rig in the loop: give --board or --evaluator external DIR"])
     workers = _workers(args)
     # every option that shapes the run, so that the printed line continues this run exactly
+    args.resume_from = Path(out) / "history.jsonl"
     args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out)]
                                 + (["--plant", args.plant] if args.plant else [])
                                 + (["--from-fit", args.from_fit, "--samples", str(args.samples or 8),
@@ -419,6 +420,7 @@ def _tuned(args, document: dict, text: str, out) -> int:
 def _tune_on_rig(args, spec, out, started) -> int:
     """``tune --board`` / ``--evaluator external DIR``: each evaluation a rig trial."""
     import time
+    from pathlib import Path
 
     from furuta_cosim.fmu.plants import load_plant
     from furuta_cosim.progress import Progress
@@ -468,6 +470,7 @@ def _tune_on_rig(args, spec, out, started) -> int:
             f"best {shown}, feasible {feasible / done:.0%}, {rate:.2f}/s", "trial" if on_rig else "evaluation")
 
     where = (["--board", args.board] if args.board else ["--evaluator", "external", args.evaluator[1]])
+    args.resume_from = Path(out) / "run.json"
     args.resume_with = " ".join(["furuta-cosim tune", str(args.spec), "-o", str(out), *where]
                                 + (["--rig", args.rig] if args.rig else [])
                                 + (["--optimizer", args.optimizer] if args.optimizer else [])
@@ -696,6 +699,9 @@ def cmd_identify(args) -> int:
     def progress(stage, n, cost):
         bar(stage, n, budget, f"cost {cost:.6g}, {n / max(time.monotonic() - started, 1e-9):.0f}/s")
 
+    from furuta_cosim.identify.run import CHECKPOINT
+
+    args.resume_from = Path(out) / CHECKPOINT
     args.resume_with = " ".join([f"furuta-cosim identify {args.spec} -o {out}"]
                                 + ([f"--starts {args.starts}"] if args.starts != 1 else [])
                                 + (["--no-profiles"] if args.no_profiles else [])
@@ -1234,9 +1240,18 @@ def _say(line: str) -> None:
 
 
 def _resume_hint(args) -> str:
-    """For an interrupted command that can go on: how."""
+    """For an interrupted command that can go on: how. Where the file a resume reads (its
+    ``resume_from``) was not written yet, nothing is there to resume: the same command without
+    --resume starts it again (--resume would be refused)."""
+    from pathlib import Path
+
     command = getattr(args, "resume_with", None)
-    return f"; '{command}' continues it" if command else ""
+    if not command:
+        return ""
+    marker = getattr(args, "resume_from", None)
+    if marker is not None and not Path(marker).is_file():
+        return f"; nothing was recorded yet: '{command.removesuffix(' --resume')}' starts it again"
+    return f"; '{command}' continues it"
 
 
 # The library's errors name its functions' parameters (``n_calls: expected ...``, and

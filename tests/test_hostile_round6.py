@@ -383,3 +383,17 @@ def test_a_command_column_scaled_wrong_is_named_not_blamed_on_the_step_size(tmp_
     assert code == 2 and "Traceback" not in err
     assert "prbs.yaml: inputs.V: reads 3000 V at t = 0 s, 300 times the amplifier's limit (10 V" in line
     assert "n_substeps" not in line
+
+
+def test_an_interrupt_before_anything_was_recorded_does_not_offer_resume(tmp_path):
+    """Found by tools/bench_signals.py (1 run in 20): a Ctrl-C before a tuning's first history
+    line said --resume continues it, and --resume then refused the folder."""
+    from types import SimpleNamespace
+
+    from furuta_cosim.cli import _resume_hint
+
+    args = SimpleNamespace(resume_with=f"furuta-cosim tune effort -o {tmp_path} --resume",
+                           resume_from=tmp_path / "history.jsonl")
+    assert _resume_hint(args) == f"; nothing was recorded yet: 'furuta-cosim tune effort -o {tmp_path}' starts it again"
+    (tmp_path / "history.jsonl").write_text("")
+    assert _resume_hint(args) == f"; 'furuta-cosim tune effort -o {tmp_path} --resume' continues it"
