@@ -3,7 +3,8 @@
 Heavy modules are imported inside the handlers so that ``--help`` stays instant. Exit codes,
 the same for every command: 0 success; 1 a check failed (a requirement, a regression, a run
 that stopped early, an FMU that fails validation); 2 bad input (one line per problem naming
-the file and key, or the flag); 130, 143 and 129 interrupted by Ctrl-C, SIGTERM or SIGHUP
+the file and key, or the flag; a path naming a FIFO, a device or a folder where a file is
+expected is refused before it is opened); 130, 143 and 129 interrupted by Ctrl-C, SIGTERM or SIGHUP
 (nothing half-written; a second signal waits until the files are written);
 141 the reader of the output went away; 75 a run stopped that ``--resume`` continues. A
 warning (``WARN``: a run that never settles) is printed and does not change the code. ``rig
