@@ -81,16 +81,15 @@ def test_the_exported_loop_runs_in_ecos_as_our_master_runs_it(tmp_path, scenario
         assert np.sum(np.abs(rows[:, 2]) > 0.13) >= 2
 
 
-@pytest.mark.parametrize("controller", ["lqr-paper", "dynamic"])
-def test_the_exported_loop_runs_in_libcosim_as_our_master_runs_it(tmp_path, controller):
+def _libcosim(path: Path, found: dict) -> np.ndarray:
+    """The plant's theta0, theta1 and V after each step of the archive in libcosim (its first
+    set: libcosimpy takes no set name)."""
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimObserver import CosimObserver
 
     log_output_level(CosimLogLevel.ERROR)
-    controller = _controller(tmp_path, controller)
-    found = export_ssp("paper-step", controller, tmp_path / "loop.ssp")
-    execution = CosimExecution.from_ssp_file(str(tmp_path / "loop.ssp"), step_size=int(round(found["step"] * 1e9)))
+    execution = CosimExecution.from_ssp_file(str(path), step_size=int(round(found["step"] * 1e9)))
     observer = CosimObserver.create_last_value()
     execution.add_observer(observer)
     plant = {s.name.decode(): s.index for s in execution.slave_infos()}["plant"]
@@ -99,7 +98,14 @@ def test_the_exported_loop_runs_in_libcosim_as_our_master_runs_it(tmp_path, cont
     for _ in range(int(round(found["stop"] / found["step"]))):
         execution.step()
         rows.append(observer.last_real_values(plant, [refs["theta0"], refs["theta1"], refs["V"]]))
-    rows = np.array(rows)
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("controller", ["lqr-paper", "dynamic"])
+def test_the_exported_loop_runs_in_libcosim_as_our_master_runs_it(tmp_path, controller):
+    controller = _controller(tmp_path, controller)
+    found = export_ssp("paper-step", controller, tmp_path / "loop.ssp")
+    rows = _libcosim(tmp_path / "loop.ssp", found)
     master = _master("paper-step", controller)
     # libcosim's observer reads after each step: the angles of the next sample, the command
     # that step ran with

@@ -13,7 +13,7 @@ from furuta_cosim.ssp import export_ssp
 from furuta_cosim.ssp_system import load_system, run_system
 
 from helpers import DYNAMIC, one_line
-from test_ssp import _ecos, _master
+from test_ssp import _ecos, _libcosim, _master
 
 AGREE = 1e-9
 LOOPS = [("qube-step", "lqr-qube"), ("qube-sine", "lqr-qube"), ("noise", "lqr-paper"),
@@ -53,23 +53,9 @@ def test_the_scenario_runs_in_ecos_and_here_as_the_master_runs_it(tmp_path, scen
 
 @pytest.mark.parametrize("scenario", ["qube-step", "noise"])
 def test_the_scenario_runs_in_libcosim_as_the_master_runs_it(tmp_path, scenario):
-    from libcosimpy.CosimExecution import CosimExecution
-    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
-    from libcosimpy.CosimObserver import CosimObserver
-
-    log_output_level(CosimLogLevel.ERROR)
     controller = "lqr-qube" if scenario.startswith("qube") else "lqr-paper"
     found = export_ssp(scenario, controller, tmp_path / "loop.ssp")
-    execution = CosimExecution.from_ssp_file(str(tmp_path / "loop.ssp"), step_size=int(round(found["step"] * 1e9)))
-    observer = CosimObserver.create_last_value()
-    execution.add_observer(observer)
-    plant = {s.name.decode(): s.index for s in execution.slave_infos()}["plant"]
-    refs = {v.name.decode(): v.reference for v in execution.slave_variables(plant)}
-    rows = []
-    for _ in range(int(round(found["stop"] / found["step"]))):
-        execution.step()
-        rows.append(observer.last_real_values(plant, [refs["theta0"], refs["theta1"], refs["V"]]))
-    rows = np.array(rows)
+    rows = _libcosim(tmp_path / "loop.ssp", found)
     master = _master(scenario, controller)
     # libcosim's observer reads after each step: the next sample's angles, this step's command
     for j, name in enumerate(("theta0", "theta1")):
