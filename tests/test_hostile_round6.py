@@ -397,3 +397,21 @@ def test_an_interrupt_before_anything_was_recorded_does_not_offer_resume(tmp_pat
     assert _resume_hint(args) == f"; nothing was recorded yet: 'furuta-cosim tune effort -o {tmp_path}' starts it again"
     (tmp_path / "history.jsonl").write_text("")
     assert _resume_hint(args) == f"; 'furuta-cosim tune effort -o {tmp_path} --resume' continues it"
+
+
+def test_a_nan_in_the_laws_own_output_column_is_named_not_skipped(pd, tmp_path):
+    """One empty cell in the law's own output column inside the window (the command the plant
+    took logged in another column) once skipped the law check: a law with the pendulum's sign
+    wrong then reached the replay. It is refused at load, naming the column and the line."""
+    from furuta_cosim.identify.experiment import load_experiment
+
+    lines = (pd.parent / "pd.csv").read_text().splitlines()
+    rows = [lines[0] + ",u_law"] + [line + "," + ("" if k == 499 else line.split(",")[6])
+                                     for k, line in enumerate(lines[1:])]
+    (pd.parent / f"{tmp_path.name}.csv").write_text("\n".join(rows) + "\n")
+    text = (pd.read_text().replace("data: pd.csv", f"data: {tmp_path.name}.csv").replace("- u\n", "- u\n- u_law\n")
+            .replace("    output: u\n", "    output: u_law\n").replace("kp: -34.0", "kp: 34.0"))
+    with pytest.raises(ConfigError) as refused:
+        load_experiment(_variant(pd, tmp_path, text))
+    assert "loop.law.output" in str(refused.value) and "line 501: u_law holds 'nan' inside the window" \
+        in str(refused.value)
