@@ -13,7 +13,8 @@ An exported archive holds::
                                  with its unit, and the scenario's start state
     resources/controller-SET.ssv the controller's reference, once per set (a tool that applies
                                  one named set, as Ecos does, gets the whole loop from it)
-    resources/furuta-cosim/      the scenario and the controller file, for ``simulate`` here
+    resources/furuta-cosim/      the scenario and the controller file it came from (provenance;
+                                 ``simulate LOOP.ssp`` runs the system: ssp_system.py)
 
 Each component binds its sets in order, the first the default (libcosim applies a component's
 first binding when no set is named; Ecos applies the set named at its ``init``). The loop is
