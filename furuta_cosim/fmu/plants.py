@@ -191,7 +191,8 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         try:
             base = _load(base_path, seen + (path.resolve(),))
         except ConfigError as error:   # the parent's problem, seen from the file that extends it
-            raise ConfigError([problem if problem.startswith(f"{path}: extends") else f"{path}: extends: {problem}"
+            # (a problem of a file further up the chain already names the file that extends it)
+            raise ConfigError([problem if ": extends: " in problem else f"{path}: extends: {problem}"
                                for problem in error.problems]) from None
         if base.model != model:
             check.fail("extends", f"{base_name} is a {base.model} plant, not {model}")
