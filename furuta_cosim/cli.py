@@ -1240,6 +1240,14 @@ def _say(line: str) -> None:
         pass
 
 
+def _say_pools() -> None:
+    """What the command did with its worker processes on the way out (each ended in bounded time)."""
+    from furuta_cosim.cosim.worker import stopped_pools
+
+    for line in stopped_pools():
+        _say(line)
+
+
 def _resume_hint(args) -> str:
     """For an interrupted command that can go on: how. Where the file a resume reads (its
     ``resume_from``) was not written yet, nothing is there to resume: the same command without
@@ -1310,6 +1318,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {as_flags(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except RunStopped as error:
+        _say_pools()
         print(f"stopped: {as_flags(str(error))}" + _resume_hint(args), file=sys.stderr)
         return EXIT_STOPPED
     except OSError as error:
@@ -1319,9 +1328,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except Signalled as stop:
         said = "terminated" if stop.name == "SIGTERM" else f"stopped by {stop.name}"
+        _say_pools()
         _say(f"{said}: no file was left half-written" + _resume_hint(args))
         return stop.code
     except KeyboardInterrupt:
+        _say_pools()
         _say("interrupted: no file was left half-written" + _resume_hint(args))
         return 130
     finally:

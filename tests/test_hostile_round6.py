@@ -295,10 +295,74 @@ def test_a_group_signal_during_workers_ends_the_run_cleanly_and_resume_gives_the
         found = bench_signals._one(command, out, length / 2, number, burst)
         assert found["signalled"] and found["code"] in (130, 143), found
         assert found["seconds"] < bench_signals.LIMIT and not found["traceback"], found
+        # a pool ended on the way out is said, in bounded time (none if the signal fell outside it)
+        for line in found["pools"]:
+            assert line.startswith("ended the 2 worker processes in ") and "killed after" not in line, found
         again = subprocess.run(command(out) + (["--resume"] if "--resume" in found["last"] else []),
                                capture_output=True, text=True)
         assert again.returncode == 0, again.stderr
         assert result(out) == whole
+
+
+def _nap(seconds: float) -> float:
+    import time
+
+    time.sleep(seconds)
+    return seconds
+
+
+@pytest.mark.parametrize("stuck", [False, True])
+def test_a_pool_ended_by_an_interrupt_is_said_with_its_workers_and_time(stuck):
+    """The main process ends its pool within the grace and says so: how many workers, how long,
+    how many it had to kill (a worker stuck in its task past the grace is killed)."""
+    import time
+
+    from furuta_cosim.cosim.worker import start_pool, stop_pool, stopped_pools
+
+    stopped_pools()
+    pool = start_pool(2)
+    futures = [pool.submit(_nap, 30.0 if stuck else 0.05) for _ in range(6)]
+    futures[0].result(timeout=60) if not stuck else time.sleep(1.0)
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        try:
+            raise KeyboardInterrupt
+        finally:
+            killed = stop_pool(pool, grace=1.0)
+    assert time.monotonic() - started < 5.0
+    [line] = stopped_pools()
+    assert line.startswith("ended the 2 worker processes in "), line
+    assert killed == (2 if stuck else 0)
+    assert ("2 killed after the" in line) == stuck, line
+    assert stopped_pools() == []               # said once
+
+
+def test_a_pool_ended_normally_is_not_said():
+    from furuta_cosim.cosim.worker import start_pool, stop_pool, stopped_pools
+
+    stopped_pools()
+    pool = start_pool(2)
+    assert pool.submit(_nap, 0.0).result(timeout=60) == 0.0
+    assert stop_pool(pool) == 0
+    assert stopped_pools() == []
+
+
+def test_the_command_says_what_it_ended_before_how_to_go_on(monkeypatch, capsys):
+    from furuta_cosim import cli
+    from furuta_cosim.cosim.worker import start_pool, stop_pool
+
+    def fitting(_args):
+        pool = start_pool(2)
+        pool.submit(_nap, 0.0).result(timeout=60)
+        try:
+            raise KeyboardInterrupt
+        finally:
+            stop_pool(pool)
+
+    monkeypatch.setattr(cli, "cmd_simulate", fitting)
+    assert cli.main(["simulate", "paper-step"]) == 130
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-2].startswith("ended the 2 worker processes in ") and lines[-1].startswith("interrupted:"), lines
 
 
 # -- an SSP's parameter value its FMU refuses is named by the archive and its entry ---------------

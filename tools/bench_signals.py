@@ -86,7 +86,8 @@ def _one(command, out: Path, delay: float, number: int, burst: int) -> dict:
         _, err = process.communicate()
         ended = float("inf")
     return {"signalled": alive, "seconds": ended, "code": process.returncode, "traceback": "Traceback" in err,
-            "last": err.strip().splitlines()[-1] if err.strip() else ""}
+            "last": err.strip().splitlines()[-1] if err.strip() else "",
+            "pools": [line for line in err.splitlines() if line.startswith("ended the ")]}
 
 
 def _readable(result, out: Path):

@@ -98,24 +98,55 @@ def start_pool(workers: int, setup=None, setup_args: tuple = ()):
                 os.environ[key] = value
 
 
+_STOPPED: list[tuple[int, int, float]] = []
+
+
 def stop_pool(pool, grace: float = 5.0) -> int:
     """End ``pool`` within ``grace`` seconds: its pending tasks cancelled, its workers given
     the grace to finish the task in hand, then killed (a worker blocked writing a result that
-    nobody will read never ends by itself). Returns how many had to be killed."""
+    nobody will read never ends by itself). Returns how many had to be killed. A pool ended
+    while an exception (an interrupt, a failure) is on its way out is remembered for
+    :func:`stopped_pools`, so that the command can say what it ended."""
+    import sys
     import time
+    from multiprocessing.connection import wait
 
+    stopping = sys.exc_info()[0] is not None
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)   # shutdown forgets it
+    start = time.monotonic()
     pool.shutdown(wait=False, cancel_futures=True)
-    deadline = time.monotonic() + grace
-    for process in processes:
-        process.join(max(0.0, deadline - time.monotonic()))
-    killed = 0
-    for process in processes:
-        if process.is_alive():
-            process.kill()
-            process.join(1.0)
-            killed += 1
+    deadline = start + grace
+    # a worker has ended when its sentinel is ready: asked by poll() instead, a worker that
+    # something else in the process reaped reads as alive for ever (waitpid fails, poll says None)
+    running = {process.sentinel: process for process in processes}
+    while running and deadline > time.monotonic():
+        for sentinel in wait(list(running), deadline - time.monotonic()):
+            running.pop(sentinel)
+    for process in running.values():
+        process.kill()
+        process.join(1.0)
+    killed = len(running)
+    # its manager thread ends once it sees the workers gone; a later fork while it still holds
+    # a queue's lock would hand that lock, held, to the next pool's worker (which then hangs)
+    if manager is not None:
+        manager.join(max(1.0, deadline - time.monotonic()))
+    if stopping and processes:
+        _STOPPED.append((len(processes), killed, time.monotonic() - start))
     return killed
+
+
+def stopped_pools() -> list[str]:
+    """One line per pool ended by an interrupt or a failure since the last call: how many
+    worker processes, how long they took, how many had to be killed."""
+    lines = []
+    for count, killed, seconds in _STOPPED:
+        how = (f"{killed} killed after the {seconds:.1f} s grace" if killed
+               else "each finished or dropped its task")
+        lines.append(f"ended the {count} worker process{'es' if count != 1 else ''} "
+                     f"in {seconds:.2f} s ({how})")
+    _STOPPED.clear()
+    return lines
 
 
 _ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}")
