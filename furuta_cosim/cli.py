@@ -268,14 +268,14 @@ def cmd_simulate(args) -> int:
 
 def _simulate_system(args) -> int:
     """``simulate LOOP.ssp[:SET]``: the archive's system checked, run by the Jacobi master,
-    its values written and summed up (furuta_cosim/ssp_system.py)."""
+    its values written and summed up (furuta_cosim/ssp/system.py)."""
     import time
     from pathlib import Path
 
     from furuta_cosim.files import output_folder
     from furuta_cosim.progress import Progress
     from furuta_cosim.ssp import split_ssp
-    from furuta_cosim.ssp_system import SystemFailed, load_system, run_system, save_run
+    from furuta_cosim.ssp.system import SystemFailed, load_system, run_system, save_run
     import numpy as np
 
     path, name = split_ssp(args.scenario)

@@ -244,7 +244,7 @@ def test_a_parameter_the_fmu_does_not_have_is_ignored_and_said(tmp_path, capsys,
 
 
 def test_an_archive_is_hostile_input(tmp_path, capsys, exported, monkeypatch):
-    from furuta_cosim import ssp
+    from furuta_cosim.ssp import read as ssp
 
     (tmp_path / "text.ssp").write_text("not a zip")
     assert "not an SSP: not a zip archive" in one_line(capsys, "simulate", "paper-step", "--plant",
@@ -305,7 +305,7 @@ def test_another_tools_ssp_is_read_by_its_plant_components_input(tmp_path, capsy
 
 
 def test_an_archive_the_schemas_refuse_is_not_written(tmp_path, monkeypatch):
-    from furuta_cosim import ssp
+    from furuta_cosim.ssp import write as ssp
 
     original = ssp._ssd
     monkeypatch.setattr(ssp, "_ssd", lambda *a: original(*a).replace(b'kind="input"', b'kind="sideways"', 1))

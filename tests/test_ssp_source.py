@@ -10,7 +10,7 @@ from fmpy.validation import validate_fmu
 
 from furuta_cosim.fmu.session import model_description
 from furuta_cosim.ssp import export_ssp
-from furuta_cosim.ssp_system import load_system, run_system
+from furuta_cosim.ssp.system import load_system, run_system
 
 from helpers import DYNAMIC, one_line
 from test_ssp import _ecos, _libcosim, _master

@@ -13,7 +13,7 @@ import pytest
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.export import export_controller
 from furuta_cosim.ssp import export_ssp
-from furuta_cosim.ssp_system import SystemFailed, load_system, run_system
+from furuta_cosim.ssp.system import SystemFailed, load_system, run_system
 
 from helpers import DYNAMIC, ROOT, build_foreign, one_line, run_cli
 from test_ssp import _ecos, _hold, _master, _replace, _rewritten

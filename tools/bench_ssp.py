@@ -108,9 +108,9 @@ def quiet():
 
 
 def ours(path: Path, found: dict, order=None, parameter_set: str | None = None) -> np.ndarray:
-    """``simulate LOOP.ssp``'s run (furuta_cosim/ssp_system.py): Jacobi, or Gauss-Seidel in
+    """``simulate LOOP.ssp``'s run (furuta_cosim/ssp/system.py): Jacobi, or Gauss-Seidel in
     ``order``; the rows before each step, as the Ecos rows."""
-    from furuta_cosim.ssp_system import load_system, run_system
+    from furuta_cosim.ssp.system import load_system, run_system
 
     run = run_system(load_system(path, parameter_set), order=order)
     n = int(round(found["stop"] / found["step"]))
@@ -121,7 +121,7 @@ def hostile(folder: Path) -> None:
     """The archives the system check refuses (the suite's list), each with its line."""
     from furuta_cosim.errors import ConfigError
     from furuta_cosim.ssp import export_ssp
-    from furuta_cosim.ssp_system import load_system
+    from furuta_cosim.ssp.system import load_system
     from test_ssp import _rewritten
     from test_ssp_system import BROKEN
 

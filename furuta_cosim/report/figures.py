@@ -256,7 +256,7 @@ def plot_tradeoff(feasible: Sequence[Sequence[float]], front: Sequence[Sequence[
 
 
 def plot_system(t: np.ndarray, values: Mapping[str, np.ndarray], path: str | Path, title: str = "") -> list[Path]:
-    """An SSP's run (furuta_cosim/ssp_system.py) as ``path``.png and .svg: one panel per
+    """An SSP's run (furuta_cosim/ssp/system.py) as ``path``.png and .svg: one panel per
     component output, grouped by component, at most 8 panels (the first by name)."""
     names = list(values)[:8]
     figure, axes = plt.subplots(len(names), 1, sharex=True, figsize=(8, 1.6 + 1.5 * len(names)), squeeze=False)

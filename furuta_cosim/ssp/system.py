@@ -34,8 +34,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from furuta_cosim.errors import ConfigError, FmuError
-from furuta_cosim.ssp import (ENTRY, SSC, SSD, _experiment, _is_real, _set_values, _unit_of, _variables,
-                              accepted, open_archive, schema_problems)
+from furuta_cosim.ssp.common import ENTRY, SSC, SSD, is_real, schema_problems, unit_of, variables_of
+from furuta_cosim.ssp.read import accepted, default_experiment, open_archive, set_values
 
 # a run of more steps than this is refused before it starts (memory: a row per step)
 MAX_STEPS = 10_000_000
@@ -122,7 +122,7 @@ def load_system(path: str | Path, parameter_set: str | None = None, *,
                               "co-simulation FMUs)")
         if md.fmiVersion not in ("2.0", "3.0"):
             raise fail(ENTRY, f"component {name}: an FMI {md.fmiVersion} FMU (FMI 2.0 and 3.0 are run)")
-        variables = _variables(md)
+        variables = variables_of(md)
         kinds = {}
         for connector in component.iterfind(f"{{{SSD}}}Connectors/{{{SSD}}}Connector"):
             cname, kind = connector.get("name"), connector.get("kind")
@@ -133,11 +133,11 @@ def load_system(path: str | Path, parameter_set: str | None = None, *,
             if v.causality != KINDS[kind]:
                 raise fail(ENTRY, f"{where} is kind {kind}, where its FMU declares it {v.causality}")
             typed = [c for c in connector if c.tag.startswith(f"{{{SSC}}}")]
-            if typed and typed[0].tag != f"{{{SSC}}}Real" or not _is_real(v):
+            if typed and typed[0].tag != f"{{{SSC}}}Real" or not is_real(v):
                 raise fail(ENTRY, f"{where}: not a Real (its FMU: {v.type}); the master exchanges Real values")
             unit = typed[0].get("unit") if typed else None
-            if unit is not None and unit != (_unit_of(v) or None):
-                raise fail(ENTRY, f"{where} is in {unit}, where its FMU declares {_unit_of(v) or 'no unit'} "
+            if unit is not None and unit != (unit_of(v) or None):
+                raise fail(ENTRY, f"{where} is in {unit}, where its FMU declares {unit_of(v) or 'no unit'} "
                                   "(no conversion is applied)")
             kinds[cname] = kind
         sets = archive.sets(name)
@@ -152,7 +152,7 @@ def load_system(path: str | Path, parameter_set: str | None = None, *,
             chosen = names[k]
             if source != ENTRY:
                 documents[source] = archive.read(source)
-            parameters = _set_values(ssv, source, md, fail, archive.warnings)
+            parameters = set_values(ssv, source, md, fail, archive.warnings)
             accepted(target, parameters, fail, source, name, chosen)
         parts[name] = Part(name, target, md, kinds, parameters, chosen)
     if parameter_set is not None and not any(p.set_name == parameter_set for p in parts.values()):
@@ -162,7 +162,7 @@ def load_system(path: str | Path, parameter_set: str | None = None, *,
         raise fail(None, f"not valid against the SSP 1.0 schemas: {problems[0]}")
     connections = _connections(root, parts, fail)
     _every_input_fed(parts, connections, fail)
-    stop, step = _experiment(root, fail)
+    stop, step = default_experiment(root, fail)
     experiment = root.find(f"{{{SSD}}}DefaultExperiment")
     try:
         start = float(experiment.get("startTime", 0.0)) if experiment is not None else 0.0
@@ -213,7 +213,7 @@ def _connections(root, parts: dict, fail) -> list:
         start, end = ends
         if end[0] is None:
             continue   # into the system's own output: nothing to run
-        units = [_unit_of(_variables(parts[e].md)[c]) for e, c in ends]
+        units = [unit_of(variables_of(parts[e].md)[c]) for e, c in ends]
         if units[0] and units[1] and units[0] != units[1]:
             raise fail(ENTRY, f"{where}: from {units[0]} to {units[1]} (no conversion is applied)")
         if end in into:
