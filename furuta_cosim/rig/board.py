@@ -186,7 +186,7 @@ def board_for(text: str, plant=None, **options) -> Board:
     from furuta_cosim.rig import quanser, virtual  # noqa: F401 - they register their boards
 
     if plant is not None and plant.model != "furuta":
-        raise ConfigError([f"--plant {plant.name}: a {plant.model} plant; the boards here run a Furuta pendulum "
+        raise ConfigError([f"plant {plant.name}: a {plant.model} plant; the boards here run a Furuta pendulum "
                            "(the QUBE's arm and pendulum encoders, its motor's current and amplifier): name a "
                            "plant of model furuta"])
     name, _, argument = str(text).partition(":")

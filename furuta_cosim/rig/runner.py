@@ -421,8 +421,8 @@ def _within_catch(board, cfile, signs, per_count: float, catch: float) -> None:
     if off > catch:
         raise ConfigError([f"{cfile.source}: a balance controller without a swing-up, and the pendulum reads "
                            f"{off:.3g} rad from upright (it balances only within {catch:g} rad, its catch "
-                           "region): hold the pendulum upright and start it with --keep-zero, run a "
-                           "swing-up-and-balance file (swingup-qube), or widen --catch RAD; nothing was "
+                           "region): hold the pendulum upright and start it with `zero=False`, run a "
+                           "swing-up-and-balance file (swingup-qube), or widen `catch` (in rad); nothing was "
                            "driven"])
 
 

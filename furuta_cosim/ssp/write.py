@@ -111,7 +111,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
             raise ConfigError([f"{given or variant.plant}: its name {name!r} is no parameter set's name "
                                "(letters, digits, '_', '.', '-'; at most 64)"])
         if any(name == s["name"] for s in sets):
-            raise ConfigError([f"--plant {given}: the parameter set {name!r} is there twice"])
+            raise ConfigError([f"plants {given}: the parameter set {name!r} is there twice"])
         sets.append({"name": name, "prepared": prepared, "plant": variant.plant})
     first = sets[0]["prepared"]
     for s in sets[1:]:

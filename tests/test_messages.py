@@ -1,0 +1,57 @@
+"""A library message names what its caller has: the Python argument or the file's key. The
+command line turns those names into its flags (cli.as_flags), so each message is written once
+and reads right from either side."""
+
+from __future__ import annotations
+
+import pytest
+
+from furuta_cosim.errors import ConfigError
+
+from helpers import one_line
+
+
+def _refusal(call) -> str:
+    with pytest.raises(ConfigError) as caught:
+        call()
+    [line] = caught.value.problems
+    return line
+
+
+def test_a_parameter_set_given_twice(tmp_path, capsys):
+    from furuta_cosim.ssp import export_ssp
+
+    line = _refusal(lambda: export_ssp("paper-step", "lqr-paper", tmp_path / "a.ssp",
+                                       plants=["qube-servo-3", "qube-servo-3"]))
+    assert line.startswith("plants qube-servo-3: the parameter set 'qube-servo-3' is there twice"), line
+    assert "--" not in line
+    line = one_line(capsys, "export-ssp", "paper-step", "--plant", "qube-servo-3", "--plant", "qube-servo-3",
+                    "-o", str(tmp_path / "b.ssp"))
+    assert line.startswith("error: --plant qube-servo-3: the parameter set"), line
+
+
+def test_a_board_given_another_models_plant(capsys):
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.rig.board import board_for
+
+    line = _refusal(lambda: board_for("virtual:fast", load_plant("toy")))
+    assert line.startswith("plant toy: a linear plant; the boards here run a Furuta pendulum"), line
+    assert "--" not in line
+    line = one_line(capsys, "rig", "home", "--board", "virtual:fast", "--plant", "toy")
+    assert line.startswith("error: --plant toy: a linear plant"), line
+
+
+def test_a_balance_controller_started_with_the_pendulum_down(tmp_path, capsys):
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.rig.board import board_for
+    from furuta_cosim.rig.runner import run_rig
+
+    plant = load_plant("qube-servo-3")
+    line = _refusal(lambda: run_rig("lqr-qube", board_for("virtual:fast", plant), plant,
+                                    tmp_path / "api", duration=1.0))
+    assert "start it with `zero=False`" in line and "widen `catch` (in rad)" in line, line
+    assert "--" not in line
+    line = one_line(capsys, "rig", "run", "lqr-qube", "--board", "virtual:fast", "--duration", "1",
+                    "-o", str(tmp_path / "cli"))
+    assert "start it with --keep-zero" in line and "widen --catch (in rad)" in line, line
+    assert "nothing was driven" in line
