@@ -55,3 +55,27 @@ def test_a_balance_controller_started_with_the_pendulum_down(tmp_path, capsys):
                     "-o", str(tmp_path / "cli"))
     assert "start it with --keep-zero" in line and "widen --catch (in rad)" in line, line
     assert "nothing was driven" in line
+
+
+def test_a_rig_method_in_simulation(tmp_path, capsys):
+    from furuta_cosim.tuning.run import tune
+    from furuta_cosim.tuning.spec import load_spec
+
+    line = _refusal(lambda: tune(load_spec("effort-qube"), tmp_path / "api", method="safe"))
+    assert line.endswith("tunes on a rig: give a `board`, or an external rig (`evaluator`) with the folder its "
+                         "trials are exchanged in"), line
+    assert "--" not in line
+    line = one_line(capsys, "tune", "effort-qube", "--optimizer", "safe", "-o", str(tmp_path / "cli"))
+    assert line.endswith("give a --board, or an external rig (--evaluator external) with the folder its trials "
+                         "are exchanged in"), line
+
+
+def test_a_rejected_fit_as_a_plant(tmp_path, capsys):
+    from furuta_cosim.fmu.plants import load_plant
+
+    path = tmp_path / "plant.yaml"
+    path.write_text("rejected: the held-out logs are 9 floors off\nmodel: furuta\n")
+    line = _refusal(lambda: load_plant(path))
+    assert line.endswith("or run identify with `accept=True` to write it as a plant all the same"), line
+    line = one_line(capsys, "simulate", "paper-step", "--plant", str(path), "-o", str(tmp_path / "o"))
+    assert line.endswith("or run identify with --accept to write it as a plant all the same"), line

@@ -149,7 +149,7 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         # identify's fit that did not reproduce its data (identify/verdict.py): no plant to use
         why = data["rejected"] if isinstance(data["rejected"], str) else "see fit.json beside it"
         check.fail("rejected", f"identify judged this fit untrustworthy ({excerpt(why, 300)}); fit again, "
-                               "or run identify with --accept to write it as a plant all the same")
+                               "or run identify with `accept=True` to write it as a plant all the same")
         check.done()
     top = check.mapping(data, "", required=("model",), optional=_NONLINEAR_KEYS + _LINEAR_KEYS)
     if top is None or "model" not in top:

@@ -265,7 +265,7 @@ class Safe(Method):
         from furuta_cosim.tuning.safe import SafeBO
 
         if run.prior is None:
-            raise ConfigError(["method: safe tunes on a rig (`tune --board` or `--evaluator external`): "
+            raise ConfigError(["method: safe tunes on a rig (a `board`, or an external rig: `evaluator`): "
                                "in simulation use bo"])
         spec, space = run.spec, run.evaluator.space
         if not run.records:  # the safe seed: the first baseline's own trial

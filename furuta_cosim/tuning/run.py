@@ -111,7 +111,7 @@ def tune(spec: TuningSpec, run_dir: str | Path, *, method: str | None = None,
         raise ConfigError([f"method: {refusal}"])
     if METHODS[method].rig_only:
         raise ConfigError([f"method: {method} ({METHODS[method].description}) tunes on a rig: give a "
-                           "board (`tune --board`) or an external rig (`--evaluator external DIR`)"])
+                           "`board`, or an external rig (`evaluator`) with the folder its trials are exchanged in"])
     check_workers(workers)
     if dask is not None:
         from furuta_cosim.tuning.executors import check_address

@@ -128,7 +128,7 @@ class BoardTrials:
             board.close()
         values = (reading.arm, reading.pendulum) + ((reading.current,) if reading.current is not None else ())
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
-            raise ConfigError([f"--board {self.board}: the board reads {values} with the amplifier off: "
+            raise ConfigError([f"board {self.board}: the board reads {values} with the amplifier off: "
                                "not finite counts and current; check its channels"])
 
     def _options(self, folder: Path | None, name: str) -> dict:
