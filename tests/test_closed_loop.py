@@ -161,7 +161,7 @@ def test_a_bad_late_column_is_one_line_naming_its_line(run, tmp_path, capsys, va
 def test_held_means_by_hand():
     import numpy as np
 
-    from furuta_cosim.identify.split import held_means
+    from furuta_cosim.identify.clocks import held_means
 
     # 0 until 0.5, then 1 until 1.5, 2 until 2.0, then 3
     means = held_means(np.array([0.5, 1.5, 2.0]), np.array([1.0, 2.0, 3.0]), np.array([0.0, 1.0, 2.0]))

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from furuta_cosim.errors import ConfigError
-from furuta_cosim.identify.experiment import Free, estimated_noise, load_experiment
+from furuta_cosim.identify.columns import estimated_noise
+from furuta_cosim.identify.experiment import Free, load_experiment
 
 from helpers import run_cli
 

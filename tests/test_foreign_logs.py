@@ -150,7 +150,7 @@ def test_an_input_s_delay_is_fitted_with_its_interval(tmp_path, capsys):
 
 
 def test_a_delay_fitted_in_segments_is_one_unknown_of_the_log(tmp_path):
-    from furuta_cosim.identify.fit import unknowns
+    from furuta_cosim.identify.problem import unknowns
     from furuta_cosim.identify.spec import load_identify_spec
     from furuta_cosim.identify.split import parts_of
 
@@ -250,7 +250,7 @@ def test_a_loop_s_fitted_delay_replays_open_loop_parts_at_the_fit_s_value(pd_lat
 
 
 def test_a_validation_log_shares_the_fitted_logs_delay(tmp_path):
-    from furuta_cosim.identify.fit import shared_values, with_shared
+    from furuta_cosim.identify.problem import shared_values, with_shared
 
     fitted = load_experiment(chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=4, name="a", duration=0.5))
     other = load_experiment(chirp_log(tmp_path, delay=0.012, free_delay=(0.0, 0.02), seed=5, name="b", duration=0.5))

@@ -161,7 +161,7 @@ class _Saturating:
 
 
 def test_a_profile_gives_the_parabola_s_interval_and_says_when_a_side_stays_open():
-    from furuta_cosim.identify.fit import Unknown
+    from furuta_cosim.identify.problem import Unknown
     from furuta_cosim.identify.profile import _profile
 
     items = [Unknown("a", 2.0, (0.0, 4.0), 1.0), Unknown("b", 1.0, (0.0, 10.0), 1.0)]

@@ -13,7 +13,8 @@ import yaml
 from furuta_cosim.errors import ConfigError
 from furuta_cosim.identify.experiment import load_experiment
 from furuta_cosim.identify.foreign import pd_log
-from furuta_cosim.identify.mismatch import MISMATCH, apart, cause, wrong_loop
+from furuta_cosim.identify.mismatch import MISMATCH, apart, cause
+from furuta_cosim.identify.precheck import wrong_loop
 from furuta_cosim.identify.replay import rebuilt_command
 
 from helpers import ROOT, run_cli

@@ -19,7 +19,8 @@ from typing import Callable
 import numpy as np
 
 from furuta_cosim.config import Frozen
-from furuta_cosim.identify.fit import Problem, Runner, autocorrelation_time
+from furuta_cosim.identify.fit import autocorrelation_time
+from furuta_cosim.identify.problem import Problem, Runner
 
 REFIT = 100   # residual evaluations per replicate's fit at most
 

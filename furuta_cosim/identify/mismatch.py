@@ -86,38 +86,3 @@ def first_apart(rebuilt: np.ndarray, logged: np.ndarray, tolerance: float = MISM
     scale = max(rms(logged[np.isfinite(logged)]) if np.any(np.isfinite(logged)) else 0.0, 1e-12)
     bad = ~(np.abs(rebuilt - logged) <= tolerance * scale)
     return int(np.argmax(bad)) if np.any(bad) else 0
-
-
-def wrong_loop(experiment) -> str | None:
-    """One line when a log's stated loop does not rebuild its logged command (beyond
-    :data:`MISMATCH` of its RMS), else None (no loop, or no logged command): the loop named, the
-    first sample where they part, and the cause measured: a column read another way that
-    rebuilds it (identify/precheck.py loop_hint), else a factor, the sign or a shift
-    (:func:`cause`), else another loop than the one stated."""
-    from furuta_cosim.identify.precheck import loop_hint
-    from furuta_cosim.identify.replay import rebuilt_command
-
-    rebuilt = rebuilt_command(experiment)
-    if rebuilt is None:
-        return None
-    logged = np.asarray(experiment.input_at("V"), dtype=float)
-    off = apart(rebuilt, logged)
-    if off <= MISMATCH:
-        return None
-    k = first_apart(rebuilt, logged)
-    line = (f"{experiment.path}: loop: the command {experiment.loop.describe()} computes from the logged data is "
-            f"{rms(rebuilt - logged):.3g} V RMS from the logged one ({rms(logged):.3g} V RMS: {off:.0%} of it, at "
-            f"most {MISMATCH:.0%}), from t = {experiment.t[k]:g} s (logged {logged[k]:.4g} V, rebuilt "
-            f"{rebuilt[k]:.4g} V)")
-    hint = loop_hint(experiment)
-    hint = hint["hint"] if hint else None
-    if hint is not None and hint["rms"] <= MISMATCH * rms(logged):
-        what = "" if hint["column"] == hint["output"] else f" (the output {hint['output']})"
-        return (line + f": its column {hint['column']!r}{what} read {hint['reading']} rebuilds it to "
-                f"{hint['rms']:.3g} V: check the unit, offset and sign of that column")
-    words = cause(rebuilt, logged, experiment.period)
-    if words:
-        return line + ": " + words
-    return (line + ": not a factor, the sign or a shift of up to "
-            f"{MAX_SHIFT} samples: another loop than the one that ran (its controller or law, its gains, "
-            "the reference it followed, its rate filter)")

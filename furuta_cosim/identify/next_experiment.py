@@ -97,7 +97,7 @@ def design(spec_name, fit_folder, *, duration: float = 10.0, seed: int = 0, volt
     import json
 
     from furuta_cosim.fmu.plants import load_plant
-    from furuta_cosim.identify.fit import Problem, Runner, unknowns
+    from furuta_cosim.identify.problem import Problem, Runner, unknowns
     from furuta_cosim.identify.replay import target_for
     from furuta_cosim.identify.spec import load_identify_spec
     from furuta_cosim.rig.supervisor import Limits
@@ -217,7 +217,7 @@ def _largest(corr: dict) -> tuple[float, list[str]]:
 def _scaled(candidate: Candidate, target, sensors: dict, voltage: float, arm: float, items, x):
     """(volts, peaks, weighted sensitivities) of the candidate at the largest amplitude up to
     ``voltage`` whose simulation keeps the arm within ARM_MARGIN of ``arm``; None if none does."""
-    from furuta_cosim.identify.fit import Problem, Runner
+    from furuta_cosim.identify.problem import Problem, Runner
 
     amplitude = voltage if np.any(candidate.volts) else 0.0
     for _ in range(12):

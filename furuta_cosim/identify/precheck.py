@@ -139,7 +139,7 @@ HINT = 5.0   # a reading of a column that replays this many times better is name
 
 def _readings(measured: np.ndarray, unit: str | None) -> list[tuple[str, np.ndarray]]:
     """Other readings of a column: another unit of its kind, the sign flipped, a turn away."""
-    from furuta_cosim.identify.experiment import UNITS
+    from furuta_cosim.identify.columns import UNITS
 
     kinds = (("rad", "deg", "rev"), ("rad/s", "deg/s", "rpm"), ("A", "mA"), ("V",))
     same = next((k for k in kinds if unit in k), ())
@@ -203,3 +203,38 @@ def far_outputs(before: dict, floors_of) -> list[tuple[str, str, float]]:
             if ratio > FAR:
                 found.append((name, output, ratio))
     return found
+
+
+def wrong_loop(experiment) -> str | None:
+    """One line when a log's stated loop does not rebuild its logged command (beyond
+    :data:`~furuta_cosim.identify.mismatch.MISMATCH` of its RMS), else None (no loop, or no logged command): the loop named, the
+    first sample where they part, and the cause measured: a column read another way that
+    rebuilds it (:func:`loop_hint`), else a factor, the sign or a shift
+    (identify/mismatch.py :func:`cause`), else another loop than the one stated."""
+    from furuta_cosim.identify.mismatch import MAX_SHIFT, MISMATCH, apart, cause, first_apart, rms
+    from furuta_cosim.identify.replay import rebuilt_command
+
+    rebuilt = rebuilt_command(experiment)
+    if rebuilt is None:
+        return None
+    logged = np.asarray(experiment.input_at("V"), dtype=float)
+    off = apart(rebuilt, logged)
+    if off <= MISMATCH:
+        return None
+    k = first_apart(rebuilt, logged)
+    line = (f"{experiment.path}: loop: the command {experiment.loop.describe()} computes from the logged data is "
+            f"{rms(rebuilt - logged):.3g} V RMS from the logged one ({rms(logged):.3g} V RMS: {off:.0%} of it, at "
+            f"most {MISMATCH:.0%}), from t = {experiment.t[k]:g} s (logged {logged[k]:.4g} V, rebuilt "
+            f"{rebuilt[k]:.4g} V)")
+    hint = loop_hint(experiment)
+    hint = hint["hint"] if hint else None
+    if hint is not None and hint["rms"] <= MISMATCH * rms(logged):
+        what = "" if hint["column"] == hint["output"] else f" (the output {hint['output']})"
+        return (line + f": its column {hint['column']!r}{what} read {hint['reading']} rebuilds it to "
+                f"{hint['rms']:.3g} V: check the unit, offset and sign of that column")
+    words = cause(rebuilt, logged, experiment.period)
+    if words:
+        return line + ": " + words
+    return (line + ": not a factor, the sign or a shift of up to "
+            f"{MAX_SHIFT} samples: another loop than the one that ran (its controller or law, its gains, "
+            "the reference it followed, its rate filter)")

@@ -41,7 +41,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from furuta_cosim.identify.fit import Problem, Runner
+from furuta_cosim.identify.problem import Problem, Runner
 
 CHI2_95 = 3.841458820694124    # chi2 quantile, 1 degree of freedom
 STEPS = 8                       # profile points per side at most (growing steps, the last at a bound)
@@ -134,7 +134,7 @@ def _profile(problem: Problem, items, x_hat: np.ndarray, k: int, cost: float, ri
     """One parameter's profile: both sides walked from the estimate (module docstring); its
     refits start where ``drift`` (:func:`_drift`) predicts, and it ends ``not profiled`` when
     ``problem``'s budget runs out."""
-    from furuta_cosim.identify.fit import BudgetSpent
+    from furuta_cosim.identify.problem import BudgetSpent
 
     others = [j for j in range(len(items)) if j != k]
     lower = np.array([u.bounds[0] / u.scale for u in items])

@@ -89,7 +89,7 @@ def start_reach(target, experiments: Sequence[Experiment], items: Sequence, x: n
     fit at ``x`` (scaled, as fit.py's Problem holds it) with Jacobian ``J`` (its ``seen``
     columns, the fitted experiments' weighted residual rows). Empty when no fitted log starts
     from counted angles or frees the start rates of a balancing log."""
-    from furuta_cosim.identify.fit import Problem, Runner, Unknown
+    from furuta_cosim.identify.problem import Problem, Runner, Unknown
 
     freed, extra = [], []
     for experiment in experiments:
@@ -150,7 +150,7 @@ def _drawn(runner, experiments, items: list, base: np.ndarray, J: np.ndarray, es
     (estimate.noise_draw), the seen unknowns refitted to first order (a Gauss-Newton step on the
     fit's Jacobian) at each; the mean move (the error works on the fit in the square as well as
     linearly) plus its 95 % spread."""
-    from furuta_cosim.identify.fit import Problem, Unknown
+    from furuta_cosim.identify.problem import Problem, Unknown
     from furuta_cosim.identify.replay import NOISE_DRAW
 
     names = [f"{e.alias or e.name}.{NOISE_DRAW}" for e in estimated]

@@ -69,7 +69,7 @@ def replay(experiments: Sequence[str | Path], target: Target, output: str | Path
         named[experiment.name] = experiment.path
     check_names(target, loaded)
     delays, said = fitted_delays(target, loaded)
-    from furuta_cosim.identify.mismatch import wrong_loop
+    from furuta_cosim.identify.precheck import wrong_loop
 
     # a loop that does not rebuild its logged command replays another loop than the one that ran
     said += [line for e in loaded if e.loop is not None for line in [wrong_loop(e)] if line]

@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from furuta_cosim.config import Frozen
-from furuta_cosim.identify.experiment import Delayed, shifted
+from furuta_cosim.identify.clocks import Delayed, held_means, shifted
 
 RATE_WINDOW = 0.025     # s on each side of a sample: the quadratic that gives a rate
 _RATES = {"theta0": "dtheta0", "theta1": "dtheta1"}
@@ -81,35 +81,6 @@ def delayed(experiment):
         else:
             inputs["V"] = shifted(written, loop.delay / experiment.period)
     return replace(experiment, inputs=Frozen(inputs), loop=None, delays=Frozen(delays))
-
-
-def held_means(switches: np.ndarray, values: np.ndarray, samples: np.ndarray) -> np.ndarray:
-    """Per interval [samples[k], samples[k+1]) the mean of a signal that is 0 before
-    ``switches[0]`` and ``values[j]`` from ``switches[j]`` on (``switches`` not decreasing); the
-    last sample's interval as long as the one before it (a period where that is none). An
-    interval of no time (two samples read at one instant) takes the signal's value there."""
-    last = samples[-1] - samples[-2] if len(samples) > 1 else 0.0
-    if not last > 0:
-        positive = np.diff(samples)[np.diff(samples) > 0] if len(samples) > 1 else np.zeros(0)
-        last = float(np.median(positive)) if len(positive) else 1.0
-    ends = np.append(samples, samples[-1] + last)
-    # the signal's integral from switches[0] to each switch, then to each end
-    widths = np.diff(switches)
-    area = np.concatenate([[0.0], np.cumsum(values[:-1] * widths)])
-
-    def integral(x):
-        j = np.searchsorted(switches, x, side="right") - 1
-        inside = j >= 0
-        found = np.zeros_like(x, dtype=float)
-        found[inside] = area[j[inside]] + values[j[inside]] * (x[inside] - switches[j[inside]])
-        return found
-
-    total = integral(ends)
-    width = np.diff(ends)
-    j = np.searchsorted(switches, samples, side="right") - 1
-    at = np.where(j >= 0, values[np.maximum(j, 0)], 0.0)   # the value at each sample's instant
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(width > 0, np.diff(total) / np.where(width > 0, width, 1.0), at)
 
 
 def part(experiment, first: int, last: int, name: str, open_loop: bool = False):

@@ -119,7 +119,6 @@ def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
                     f"its smoother at the fitted values): the fit followed a start the rig was not in; free it "
                     f"(start: {{{rate}: {{free: [lo, hi]}}}})")
     if reasons:  # a column that reads far better another way is the first thing to check
-        from furuta_cosim.identify.fit import far_line
         from furuta_cosim.identify.precheck import loop_line
 
         far = (document.get("precheck") or {}).get("far") or []
@@ -278,3 +277,13 @@ def line(verdict: dict) -> str:
     return (f"verdict: NOT trusted: {verdict['reasons'][0]}"
             + (f" (and {len(verdict['reasons']) - 1} more reason(s), in fit.json)" if len(verdict["reasons"]) > 1 else "")
             + f"; next: {verdict['next']}")
+
+
+def far_line(entry: dict) -> str:
+    """One far column as a line: where it starts, and the reading that would fit it if any."""
+    line = (f"{entry['experiment']} {entry['output']}: at the start values it replays {entry['floors']:.3g} "
+            f"noise floors off before anything is fitted")
+    if entry["hint"]:
+        line += (f"; its column {entry['column']!r} read {entry['hint']['reading']} would replay at "
+                 f"{entry['hint']['floors']:.3g}: check the unit, offset and sign of that column")
+    return line
