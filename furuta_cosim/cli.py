@@ -700,7 +700,7 @@ def cmd_identify(args) -> int:
     def progress(stage, n, cost):
         bar(stage, n, budget, f"cost {cost:.6g}, {n / max(time.monotonic() - started, 1e-9):.0f}/s")
 
-    from furuta_cosim.identify.run import CHECKPOINT
+    from furuta_cosim.identify.rundir import CHECKPOINT
 
     args.resume_from = Path(out) / CHECKPOINT
     args.resume_with = " ".join([f"furuta-cosim identify {args.spec} -o {out}"]
@@ -724,7 +724,7 @@ def cmd_identify(args) -> int:
     if args.json:
         print(dumps(document))
         return code
-    from furuta_cosim.identify.run import summary_text
+    from furuta_cosim.identify.written import summary_text
 
     print(summary_text(document, out), end="")
     return code

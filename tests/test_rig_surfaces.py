@@ -240,12 +240,13 @@ def test_identify_on_workers_leaves_no_folder_in_the_temporary_directory(tmp_pat
 @pytest.mark.slow
 def test_the_fit_is_written_before_the_figures(tmp_path, monkeypatch):
     """A full disk (here: a figure that cannot be drawn) keeps plant.yaml and fit.json."""
+    import furuta_cosim.identify.pipeline as pipeline
     import furuta_cosim.identify.run as run
 
     def broken(*_args, **_kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(run, "_figures", broken)
+    monkeypatch.setattr(pipeline, "draw_figures", broken)
     spec = _shipped_spec(tmp_path, max_simulations=30)
     with pytest.raises(OSError):
         run.identify(spec, tmp_path / "fit", profiles=False)

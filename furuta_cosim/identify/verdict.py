@@ -72,7 +72,17 @@ def floor_of(comparison: dict) -> tuple[float, str]:
 def judge(document: dict, ranges: dict, tolerance: float = TOLERANCE) -> dict:
     """The verdict on a fit.json ``document``: ``trusted``, the ``reasons`` it is not (each
     with its next step), per output the RMS in noise floors, and ``notes`` that do not count
-    against it. ``ranges``: each parameter's physical range (identify/fit.py physical_ranges)."""
+    against it. The default ``judge`` of identify's pipeline (identify/pipeline.py).
+
+    Parameters
+    ----------
+    document : dict
+        A fit.json document (its replays, held-out scores, parameters and intervals).
+    ranges : dict
+        Each parameter's physical range (identify/fit.py physical_ranges).
+    tolerance : float
+        The largest replay RMS that is trusted, in noise floors (the spec's ``tolerance``).
+    """
     reasons, notes, outputs = [], [], {}
     for kind in ("experiments", "validation"):
         for (name, output), c in by_log(document, kind).items():
