@@ -101,12 +101,34 @@ def test_a_free_delay_at_a_fitted_value_and_a_lab_s_pd(tmp_path, target, monkeyp
         _same(fast, slow)
 
 
-def test_the_kinds_it_does_not_take_run_the_python_loop(tmp_path, target, monkeypatch):
-    """A swing-up (it switches), a jittered clock: the Python loop, and the same result as
-    with the C loop switched off."""
+def test_a_jittered_clock_and_a_rig_s_late_samples(tmp_path, target, monkeypatch):
+    """The loop as it ran: a PD logged on a jittered clock (1.5 to 4.8 ms), and a balancing run
+    on the virtual board whose samples wake up to 2 ms late (its late and compute columns): the
+    plant stepped to each reading, each command switched in when it arrived."""
+    from furuta_cosim.cli import main
     from furuta_cosim.identify.foreign import pd_log
 
-    experiment = with_estimate(load_experiment(pd_log(tmp_path / "pd", duration=3.0, jitter=True)), target)
+    jittered = with_estimate(load_experiment(pd_log(tmp_path / "pd", duration=3.0, jitter=True)), target)
+    assert jittered.jittered
+    out = tmp_path / "late"
+    assert main(["rig", "run", "lqr-qube", "--board", "virtual:fast,upright=0.05,late=0.002", "--duration", "3",
+                 "-o", str(out)]) == 0
+    late = with_estimate(load_experiment(out / "experiment.yaml"), target)
+    assert late.late is not None and np.max(late.late) > 0.0005
+    for experiment in (jittered, late):
+        fast, slow, ran = _both(target, experiment, monkeypatch)
+        assert ran, experiment.name
+        _same(fast, slow)
+
+
+def test_a_swing_up_runs_the_python_loop(tmp_path, target, monkeypatch):
+    """A swing-up switches between its modes (a rule, not a matrix): the Python loop, with the
+    same result as with the C loop switched off."""
+    from furuta_cosim.cli import main
+
+    out = tmp_path / "swing"
+    assert main(["rig", "run", "swingup-qube", "--board", "virtual:fast", "--duration", "3", "-o", str(out)]) in (0, 1)
+    experiment = load_experiment(out / "experiment.yaml")
     fast, slow, ran = _both(target, experiment, monkeypatch)
     assert not ran
     assert all(np.array_equal(fast[0][n], slow[0][n]) for n in fast[0]) and np.array_equal(fast[1], slow[1])

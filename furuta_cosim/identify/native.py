@@ -1,13 +1,14 @@
 """A replay's closed loop in C (``_c/replay.c``): the loop of :func:`~furuta_cosim.identify.replay.closed_loop`
 for the logs whose controller is linear, the common case of a fit (a balancing log under a
-controller file's law or a law in the logger's own words), on a uniform clock.
+controller file's law or a law in the logger's own words), on the log's clock as it ran.
 
 It applies where the loop's controller is a controller file without a swing-up (the rates by
-the loop's filter, any lead-in before the window) or a law whose matrices do not vary with
-the clock, and the log records no timing of its own (``late``, ``compute``, a jittered clock):
-any delay in the loop (whole samples and a part of one), feedforward, voltage limit, the
-encoders' rounding or a balancing log's smoother. Elsewhere, where no C compiler is there, or
-with ``FURUTA_COSIM_PYTHON_LOOP=1``, the Python loop runs; the Python loop is the reference the
+the loop's filter, any lead-in before the window) or a law in the logger's words (its
+matrices once, or per sample on a jittered clock), with any delay in the loop (whole samples
+and a part of one), feedforward, voltage limit, the encoders' rounding or a balancing log's
+smoother, on a uniform clock or the instants the log records (its ``late`` and ``compute``
+columns, a jittered time column). A swing-up (its modes switch by a rule), where no C
+compiler is there, or with ``FURUTA_COSIM_PYTHON_LOOP=1``, the Python loop runs; the Python loop is the reference the
 C loop is checked against (within 1e-12: tests/test_native_replay.py) and ``tools/bench_replay.py``
 times the two.
 """
@@ -47,9 +48,14 @@ typedef struct {
     long long n_lead; const double *lead_angles, *lead_current, *lead_reference;
     double first0, first1;
     int n_x, n_v; double *x; const double *A, *B, *C, *D; double law_offset, law_factor;
+    int varying;
     const int *source;
     const double *c0, *c1;
     const double *columns;
+    int timed;
+    const double *read, *arrive;
+    double *when, *value; long long capacity;
+    long long n_pending; double level;
     double *raw;
     double *volts;
     long long stopped_at;
@@ -71,12 +77,29 @@ def _doubles(values) -> np.ndarray:
     return np.ascontiguousarray(values, dtype=np.float64).ravel()
 
 
+_VARYING: dict = {}   # the last varying law's matrices by sample: (law, n) -> arrays
+
+
+def _matrices(law, n: int) -> tuple:
+    """(A, B, C, D) of ``law`` flattened for the C loop: once, or, for a law whose matrices vary
+    with the clock (a jittered log), one set per sample as the Python loop assembles them,
+    kept for the next replay of the same law (a fit replays it hundreds of times)."""
+    if law.varying is None:
+        return _doubles(law.A), _doubles(law.B), _doubles(law.C[0]), _doubles(law.D[0])
+    key = (id(law), n)
+    if key not in _VARYING or _VARYING[key][0] is not law:
+        sets = [law.matrices(float(law.dt[k])) for k in range(n)]
+        _VARYING.clear()
+        _VARYING[key] = (law, tuple(_doubles([m[j] if j < 2 else m[j][0] for m in sets]) for j in range(4)))
+    return _VARYING[key][1]
+
+
 def _command(loop, experiment, runtime_of) -> dict | None:
     """The loop's command as the C loop takes it, or None where it cannot (a swing-up, a law
     whose matrices vary with the clock, more than it has room for)."""
     if loop.linear is not None:
         law = loop.linear
-        if law.varying is not None or law.A.shape[0] > MAX or len(law.sources) > MAX:
+        if law.A.shape[0] > MAX or len(law.sources) > MAX:
             return None
         factor, offset = law.command
         sources, c0, c1, columns = [], [], [], []
@@ -94,10 +117,11 @@ def _command(loop, experiment, runtime_of) -> dict | None:
                 c1.append(0.0)
                 columns.append(np.asarray(law.columns[name], dtype=float)[:experiment.samples])
         n_x = law.A.shape[0]
-        return {"kind": 2, "n_x": n_x, "n_v": len(sources),
+        A, B, C, D = _matrices(law, experiment.samples)
+        return {"kind": 2, "n_x": n_x, "n_v": len(sources), "varying": law.varying is not None,
                 "x": _doubles(np.zeros(n_x) if law.x0 is None else law.x0) if n_x else np.zeros(1),
-                "A": _doubles(law.A) if n_x else np.zeros(1), "B": _doubles(law.B) if n_x else np.zeros(1),
-                "C": _doubles(law.C[0]) if n_x else np.zeros(1), "D": _doubles(law.D[0]),
+                "A": A if n_x else np.zeros(1), "B": B if n_x else np.zeros(1),
+                "C": C if n_x else np.zeros(1), "D": D,
                 "law_offset": float(offset), "law_factor": float(factor),
                 "source": np.asarray(sources, dtype=np.intc), "c0": _doubles(c0), "c1": _doubles(c1),
                 "columns": _doubles(np.concatenate(columns) if columns else [0.0])}
@@ -130,16 +154,18 @@ def _hand_back(session, R) -> None:
 
 
 def replay_in_c(session, target, experiment, *, names, fmu_out, first, v_scale: float, v_offset: float,
-                noise, phase: float, delay: float, logged, runtime_of) -> tuple | None:
+                noise, phase: float, delay: float, logged, runtime_of, timed: bool = False, read=None,
+                arrive=None, pending=(), level: float = 0.0) -> tuple | None:
     """(raw outputs n x len(names), volts, the sample where an output stopped being finite or
     -1) of the closed loop in C, the session already reset with its inputs and outputs chosen
     and ``first`` its outputs there; None where the C loop does not apply (the Python loop
-    then runs).
+    then runs). A ``timed`` log steps the plant to each reading (``read``) and switches its
+    voltage at each command's arrival (``arrive``), ``pending`` the commands on their way as the
+    window starts and ``level`` the voltage then (replay.py closed_loop).
 
     A step that fails raises the session's error, as the Python loop's step does."""
     loop = experiment.loop
-    if os.environ.get(OFF) == "1" or experiment.late is not None or loop.compute is not None \
-            or experiment.jittered or (loop.mode is not None) or len(fmu_out) > MAX:
+    if os.environ.get(OFF) == "1" or loop.mode is not None or len(fmu_out) > MAX:
         return None
     if len(session.inputs) != 1 or len(session.outputs) != len(fmu_out):
         return None
@@ -162,6 +188,8 @@ def replay_in_c(session, target, experiment, *, names, fmu_out, first, v_scale: 
             "noise1": _doubles(noise[1] if noise is not None else [0.0]),
             "feedforward": _doubles(feedforward), "logged": _doubles(logged if len(logged) else [0.0]),
             "raw": raw, "volts": volts, "first": _doubles(first),
+            "read": _doubles(read if timed else [0.0]), "arrive": _doubles(arrive if timed else [0.0]),
+            "when": np.zeros(n + len(pending) + 1), "value": np.zeros(n + len(pending) + 1),
             **{k: v for k, v in command.items() if isinstance(v, np.ndarray)}}
     R = _FFI.new("Replay *")
     R.step, R.call = _FFI.cast("void *", clock["step"]), _FFI.cast("void *", clock["call"])
@@ -176,6 +204,9 @@ def replay_in_c(session, target, experiment, *, names, fmu_out, first, v_scale: 
     R.limited, R.limit = loop.voltage is not None, float(loop.voltage or 0.0)
     R.whole, R.part = whole, part
     R.n_logged = len(logged)
+    R.timed, R.capacity, R.n_pending, R.level = bool(timed), n + len(pending) + 1, len(pending), float(level)
+    for j, (when, value) in enumerate(pending):
+        keep["when"][j], keep["value"][j] = when, value
     for key, value in command.items():
         if not isinstance(value, np.ndarray):
             setattr(R, key, value)

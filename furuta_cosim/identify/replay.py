@@ -560,7 +560,8 @@ def closed_loop(session, target: Target, experiment: Experiment,
 
         found = replay_in_c(session, target, experiment, names=names, fmu_out=fmu_out, first=y,
                             v_scale=v_scale, v_offset=v_offset, noise=noise, phase=phase, delay=delay,
-                            logged=logged, runtime_of=lambda: _runtime(loop, experiment.period))
+                            logged=logged, runtime_of=lambda: _runtime(loop, experiment.period),
+                            timed=timed, read=read, arrive=arrive, pending=pending, level=level)
         if found is not None:   # the same loop in C (identify/native.py)
             raw, volts, _ = found
         for k in range(n if found is None else 0):

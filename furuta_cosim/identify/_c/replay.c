@@ -3,7 +3,8 @@
  * angles as the encoders count them or as a balancing log's smoother has them, the rates by
  * the loop's filter, the current; or a law in the logger's own words, a discrete state space
  * on what the log recorded), its feedforward, voltage limit and delay in the loop (whole
- * samples and a part of one), on a uniform clock. The same events in the same order as the
+ * samples and a part of one), on its clock as it ran (a uniform one, or the instants a log
+ * records its samples read and its commands written, jittered). The same events in the same order as the
  * Python loop, which stays the reference (tests/test_native_replay.py: within 1e-12). The
  * plant is stepped through the session's own step_io, its clock kept as the session keeps it
  * (start + k * h while h stays the same). */
@@ -36,9 +37,16 @@ typedef struct {
     double first0, first1;                      /* the angles logged at the window's first sample */
     /* kind 2, a law: x' = A x + B v, u = (C x + D v + offset) * factor */
     int n_x, n_v; double *x; const double *A, *B, *C, *D; double law_offset, law_factor;
+    int varying;                                /* 1: A, B, C, D hold one set per sample (a jittered clock) */
     const int *source;                          /* per v: 0 theta0, 1 theta1, 2 i, 3 a column */
     const double *c0, *c1;                      /* per v: seen / c0 - c1 */
     const double *columns;                      /* n_v x n: a column's value by sample */
+    /* a log that records when each sample was read and its command written, or a jittered
+     * clock: the plant stepped to each reading, its voltage switched at each arrival */
+    int timed;
+    const double *read, *arrive;                /* n each */
+    double *when, *value; long long capacity;   /* the commands on their way (a queue) */
+    long long n_pending; double level;          /* the queue as the loop starts; the voltage then */
     /* records */
     double *raw;                                /* n x n_names */
     double *volts;                              /* n */
@@ -96,22 +104,37 @@ static double control(Replay *R, double a0, double a1, double current, double r,
 
 static double law(Replay *R, long long k, double a0, double a1, double current) {
     double v[64], next[64];
+    size_t nx = (size_t)R->n_x, nv = (size_t)R->n_v, at = R->varying ? (size_t)k : 0;
+    const double *A = R->A + at * nx * nx, *B = R->B + at * nx * nv, *C = R->C + at * nx, *D = R->D + at * nv;
     double seen[3] = {a0, a1, current};
     for (int j = 0; j < R->n_v; j++)
         v[j] = R->source[j] < 3 ? seen[R->source[j]] / R->c0[j] - R->c1[j] : R->columns[(size_t)j * R->n + k];
     double u = 0.0;
-    for (int i = 0; i < R->n_x; i++) u += R->C[i] * R->x[i];
+    for (int i = 0; i < R->n_x; i++) u += C[i] * R->x[i];
     double dv = 0.0;
-    for (int j = 0; j < R->n_v; j++) dv += R->D[j] * v[j];
+    for (int j = 0; j < R->n_v; j++) dv += D[j] * v[j];
     u = u + dv;
     for (int i = 0; i < R->n_x; i++) {
         double a = 0.0, b = 0.0;
-        for (int m = 0; m < R->n_x; m++) a += R->A[(size_t)i * R->n_x + m] * R->x[m];
-        for (int j = 0; j < R->n_v; j++) b += R->B[(size_t)i * R->n_v + j] * v[j];
+        for (int m = 0; m < R->n_x; m++) a += A[(size_t)i * nx + m] * R->x[m];
+        for (int j = 0; j < R->n_v; j++) b += B[(size_t)i * nv + j] * v[j];
         next[i] = a + b;
     }
     for (int i = 0; i < R->n_x; i++) R->x[i] = next[i];
     return (u + R->law_offset) * R->law_factor;
+}
+
+/* as replay.py _held: ``seconds`` at ``value`` in steps no longer than ``longest``; 1 when it
+ * stepped (the outputs are the last step's), 0 when ``seconds`` is no time, else -failure */
+static int held(Replay *R, double value, double seconds, double longest) {
+    if (seconds <= 1e-9 * longest) return 0;
+    long long pieces = (long long)ceil(seconds / longest - 1e-9);
+    if (pieces < 1) pieces = 1;
+    for (long long p = 0; p < pieces; p++) {
+        int failed = plant_step(R, value, seconds / (double)pieces);
+        if (failed) return -failed;
+    }
+    return 1;
 }
 
 static double counted(double angle, double zero, double per_count) {
@@ -126,7 +149,11 @@ __attribute__((visibility("default"))) int run_replay(Replay *R) {
     double last[2] = {0.0, 0.0}, rates[2] = {0.0, 0.0};
     const double pi = 3.14159265358979323846;
     if (R->n_out > 64 || R->n_xc > 64 || R->n_x > 64 || R->n_v > 64) return -1;
-    const double *y = R->first;
+    double kept[64];                  /* the outputs the loop reads: the window's start, then a step's */
+    for (int j = 0; j < R->n_out; j++) kept[j] = R->first[j];
+    const double *y = kept;
+    long long head = 0, tail = R->n_pending;   /* the queue: when[head .. tail) */
+    double level = R->level, now_t = R->read[0];
     R->stopped_at = -1;
     for (long long k = 0; k < R->n; k++) {
         int finite = 1;
@@ -163,7 +190,31 @@ __attribute__((visibility("default"))) int run_replay(Replay *R) {
             u = (low > -R->limit) ? low : -R->limit;
         }
         R->volts[k] = u;
-        if (k < R->n - 1) {
+        if (R->timed && k < R->n - 1) {
+            double arrives = R->arrive[k];
+            double latest = (tail > head) ? R->when[tail - 1] : now_t;
+            if (tail >= R->capacity) return -1;
+            R->when[tail] = (latest > arrives) ? latest : arrives;   /* Python's max(arrives, latest) */
+            R->value[tail] = u;
+            tail++;
+            double end = R->read[k + 1];
+            while (tail > head && R->when[head] < end - 1e-12) {
+                double at = R->when[head], v = R->value[head];
+                head++;
+                if (at - now_t > 1e-12) {
+                    int done = held(R, (level - R->v_offset) / R->v_scale, at - now_t, R->period);
+                    if (done < 0) { R->failed_at = k; return -done; }
+                    now_t = at;
+                }
+                level = v;
+            }
+            int done = held(R, (level - R->v_offset) / R->v_scale, end - now_t, R->period);
+            if (done < 0) { R->failed_at = k; return -done; }
+            if (done) {
+                for (int j = 0; j < R->n_out; j++) kept[j] = R->out[j];
+            }
+            if (end > now_t) now_t = end;
+        } else if (k < R->n - 1) {
             double now = written(R, k - R->whole);
             int failed;
             if (R->part > 0.0 &&
@@ -175,7 +226,7 @@ __attribute__((visibility("default"))) int run_replay(Replay *R) {
                 R->failed_at = k;
                 return failed;
             }
-            y = R->out;
+            for (int j = 0; j < R->n_out; j++) kept[j] = R->out[j];
         }
     }
     return 0;
