@@ -865,10 +865,6 @@ def cmd_list(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from furuta_cosim.defaults import PAPER_PERIOD
-    from furuta_cosim.fmu.versions import VERSIONS
-    from furuta_cosim.tuning.methods import METHODS
-
     parser = argparse.ArgumentParser(
         prog="furuta-cosim",
         description="Co-simulation toolchain for the Furuta pendulum and other underactuated plants.",
@@ -879,6 +875,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser.add_argument("--version", action="version", version=f"furuta-cosim {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    _add_plants_commands(commands)
+    _add_design_commands(commands)
+    _add_runs_commands(commands)
+    _add_exchange_commands(commands)
+    _add_identify_commands(commands)
+    _add_rig_commands(commands)
+    return parser
+
+
+def _add_plants_commands(commands) -> None:
+    """The commands of the plant: its FMU, its linearization, another tool's FMU checked."""
+    from furuta_cosim.fmu.versions import VERSIONS
 
     p = commands.add_parser("list", help="the shipped plants, models, controllers and scenarios")
     p.add_argument("--json", action="store_true", help="print JSON: {kind: {name: description}}")
@@ -901,6 +910,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mapping", metavar="FILE", help="for --fmu: names its states and control input")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_linearize)
+
+    p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
+    p.add_argument("path", help="the .fmu file")
+    p.set_defaults(handler=cmd_validate_fmu)
+
+
+def _add_design_commands(commands) -> None:
+    """The commands of control design: a controller designed and analyzed."""
+    from furuta_cosim.defaults import PAPER_PERIOD
 
     p = commands.add_parser("design", help="design a controller")
     designs = p.add_subparsers(dest="design", required=True, metavar="METHOD")
@@ -942,6 +960,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --rig: the command's delay to the motor (default 0.001, the virtual board's)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(handler=cmd_analyze)
+
+
+def _add_runs_commands(commands) -> None:
+    """The commands of runs: a scenario simulated, tuned, compared, checked against baselines, reported."""
+    from furuta_cosim.tuning.methods import METHODS
 
     p = commands.add_parser("simulate", help="run a scenario: traces, metrics, figures")
     p.add_argument("scenario", help="scenario file or name in scenarios/ (paper-step, toy-step, ...); or an "
@@ -1021,6 +1044,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="baseline folder (default: baselines/ beside each scenario file)")
     p.set_defaults(handler=cmd_regress)
 
+    p = commands.add_parser("report", help="one self-contained HTML page for a run directory")
+    p.add_argument("folder", help="a run directory of simulate, tune, regress -o or reproduce")
+    p.add_argument("-o", "--output", help="the HTML file (default: DIR/report.html)")
+    p.set_defaults(handler=cmd_report)
+
+    p = commands.add_parser("reproduce", help="the paper, claim by claim: our value and a verdict")
+    p.add_argument("-o", "--output", help="folder (default: runs/reproduction)")
+    p.add_argument("--budget", choices=("quick", "full"), default="quick",
+                   help="tuning calls: quick 30, full 150 (the paper's)")
+    p.add_argument("--workers", type=int, help="worker processes for the tunings (default: one per core)")
+    p.set_defaults(handler=cmd_reproduce)
+
+
+def _add_exchange_commands(commands) -> None:
+    """The commands of exchange: a controller and the closed loop for other tools."""
+    from furuta_cosim.fmu.versions import VERSIONS
+
     p = commands.add_parser("export-controller",
                             help="build a controller as an FMI 2.0 or 3.0 FMU and print its path")
     p.add_argument("controller", help="controller file or name in scenarios/controllers")
@@ -1049,18 +1089,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print what was written as JSON")
     p.set_defaults(handler=cmd_export_ssp)
 
-    p = commands.add_parser("report", help="one self-contained HTML page for a run directory")
-    p.add_argument("folder", help="a run directory of simulate, tune, regress -o or reproduce")
-    p.add_argument("-o", "--output", help="the HTML file (default: DIR/report.html)")
-    p.set_defaults(handler=cmd_report)
 
-    p = commands.add_parser("reproduce", help="the paper, claim by claim: our value and a verdict")
-    p.add_argument("-o", "--output", help="folder (default: runs/reproduction)")
-    p.add_argument("--budget", choices=("quick", "full"), default="quick",
-                   help="tuning calls: quick 30, full 150 (the paper's)")
-    p.add_argument("--workers", type=int, help="worker processes for the tunings (default: one per core)")
-    p.set_defaults(handler=cmd_reproduce)
-
+def _add_identify_commands(commands) -> None:
+    """The commands of identification: logs replayed, plants fitted, the next experiment designed."""
     p = commands.add_parser("replay", help="run a log's inputs (and its loop, if it names one) on a plant and compare")
     p.add_argument("experiments", nargs="+", help="experiment files (YAML naming a CSV log)")
     p.add_argument("--plant", help="plant file or name (default: the plant a rig run's log was recorded on, "
@@ -1116,6 +1147,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print design.json")
     p.set_defaults(handler=cmd_design_experiment)
 
+
+def _add_rig_commands(commands) -> None:
+    """The commands of the rig: runs on a board, homing, the encoders' signs."""
     p = commands.add_parser("rig", help="run controllers on a rig: a board in real time")
     rigs = p.add_subparsers(dest="rig", required=True, metavar="ACTION")
     q = rigs.add_parser("run", help="run a controller on a board, log every sample, leave the rig at 0 V")
@@ -1165,11 +1199,6 @@ def build_parser() -> argparse.ArgumentParser:
                                                             "zeroing them with the rig at rest")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     q.set_defaults(handler=cmd_rig_check_signs)
-
-    p = commands.add_parser("validate-fmu", help="validate an FMU: fmpy, smoke runs, Ecos")
-    p.add_argument("path", help="the .fmu file")
-    p.set_defaults(handler=cmd_validate_fmu)
-    return parser
 
 
 def _check_seed(seed) -> None:

@@ -153,7 +153,7 @@ def _hand_back(session, R) -> None:
     session._start, session._k, session._h, session.time = R.start, R.k, R.h, R.time
 
 
-def replay_in_c(session, target, experiment, *, names, fmu_out, first, v_scale: float, v_offset: float,
+def replay_in_c(session, experiment, *, names, fmu_out, first, v_scale: float, v_offset: float,
                 noise, phase: float, delay: float, logged, runtime_of, timed: bool = False, read=None,
                 arrive=None, pending=(), level: float = 0.0) -> tuple | None:
     """(raw outputs n x len(names), volts, the sample where an output stopped being finite or

@@ -558,7 +558,7 @@ def closed_loop(session, target: Target, experiment: Experiment,
         y = session.get([v for v, _, _ in fmu_out])
         from furuta_cosim.identify.native import replay_in_c
 
-        found = replay_in_c(session, target, experiment, names=names, fmu_out=fmu_out, first=y,
+        found = replay_in_c(session, experiment, names=names, fmu_out=fmu_out, first=y,
                             v_scale=v_scale, v_offset=v_offset, noise=noise, phase=phase, delay=delay,
                             logged=logged, runtime_of=lambda: _runtime(loop, experiment.period),
                             timed=timed, read=read, arrive=arrive, pending=pending, level=level)
