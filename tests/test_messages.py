@@ -8,7 +8,7 @@ import pytest
 
 from furuta_cosim.errors import ConfigError
 
-from helpers import one_line
+from helpers import one_line, run_cli
 
 
 def _refusal(call) -> str:
@@ -79,3 +79,14 @@ def test_a_rejected_fit_as_a_plant(tmp_path, capsys):
     assert line.endswith("or run identify with `accept=True` to write it as a plant all the same"), line
     line = one_line(capsys, "simulate", "paper-step", "--plant", str(path), "-o", str(tmp_path / "o"))
     assert line.endswith("or run identify with --accept to write it as a plant all the same"), line
+
+
+def test_a_fit_the_logs_cannot_separate():
+    """The precheck's next step names identify()'s ``force``; the command line its --force
+    (tests/test_trust.py runs the command on a log without the current)."""
+    from furuta_cosim.cli import as_flags
+    from furuta_cosim.identify.precheck import next_step
+
+    said = next_step([{"names": ["R_a", "M_f"]}], {"theta0", "theta1"}, plant_has_current=True)
+    assert said.endswith("`force=True` fits anyway") and "--" not in said, said
+    assert as_flags(said).endswith("--force fits anyway")

@@ -373,7 +373,7 @@ def fit(spec: IdentifySpec, target: Target, *, workers: int = 1, dask: str | Non
 
             raise ConfigError([f"{e['file']}: {loop_line(e)}" for e in misread]
                               + ["the fit stopped before it began: read that column as named (its unit:, the sign, "
-                                 "or its offset:) and fit again; --force fits anyway"])
+                                 "or its offset:) and fit again; `force=True` fits anyway"])
         if resume is None:  # a resumed run passed this check when it began
             readings = _separable_or_stop(runner, spec, items, x0, force, log)
         else:
@@ -562,7 +562,7 @@ def _loops_rebuild(spec, log) -> None:
     if wrong:
         raise ConfigError(wrong + [f"the fit stopped before it began ({time.perf_counter() - started:.1f} s): "
                                    "state the loop that ran (loop: in each experiment file), or fix the column "
-                                   "named; force fits anyway (--force)"])
+                                   "named; `force=True` fits anyway"])
     if any(e.loop is not None for e in spec.experiments + spec.validation):
         log(f"  each log's loop rebuilds its logged command ({time.perf_counter() - started:.1f} s)")
 

@@ -116,7 +116,7 @@ def next_step(groups: list[dict], outputs: set[str], plant_has_current: bool) ->
     if plant_has_current and "i" not in outputs and any(
             {"R_a", "M_f"} & set(g["names"]) for g in groups):
         steps.append("log the motor current (an output i) to separate the motor's parameters")
-    steps.append("or add a log that excites them (design-experiment); --force fits anyway")
+    steps.append("or add a log that excites them (design-experiment); `force=True` fits anyway")
     return "; ".join(steps)
 
 

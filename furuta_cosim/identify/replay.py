@@ -117,7 +117,7 @@ def recorded_plant(paths) -> tuple[str | None, str]:
             return None, ""
         if "/" in name or "\\" in name or name.startswith("."):
             raise ConfigError([f"{path}: rig.plant: {excerpt(name)}: expected a plant file's name (rig run writes "
-                               "its file name, never a path); give the plant with --plant"])
+                               "its file name, never a path); give the plant (`plant`)"])
         found.add(((name, digest if isinstance(digest, str) else ""), Path(path).resolve().parent))
     names = {name for (name, _), _ in found}
     if len(names) != 1:
@@ -132,7 +132,7 @@ def recorded_plant(paths) -> tuple[str | None, str]:
             continue
     if plant is None:
         raise ConfigError([f"rig.plant: the log was recorded on {name}, which is neither beside it nor a "
-                           "shipped plant: give the rig's plant file with --plant"])
+                           "shipped plant: give the rig's plant file (`plant`)"])
     same = not digest or content_sha256(plant) == digest
     return str(plant.path), (f"replayed on {plant.name}, the plant the rig run ran on (rig.plant; --plant "
                              "chooses another)" + ("" if same else f"; its file {plant.path.name} has changed "

@@ -98,7 +98,7 @@ def load_fit(path: str | Path) -> Fit:
     fitted = document.get("fitted_plant")
     if isinstance(fitted, dict) and fitted.get("rejected"):
         raise ConfigError([f"{path}: identify judged this fit untrustworthy (its verdict in this file); "
-                           "fit again, or run identify with --accept to use it all the same"])
+                           "fit again, or run identify with `accept=True` to use it all the same"])
     if not isinstance(fitted, dict) or not isinstance(fitted.get("sha256"), str):
         raise ConfigError([f"{path}: fitted_plant: expected the sha256 of the plant it was fitted "
                            "to (a fit.json of identify names its plant.yaml)"])
