@@ -9,8 +9,11 @@
 - fit: identify of that log with R_a, M_f and I_a free and profiles, on ``--workers`` worker
   processes, once with each loop (``FURUTA_COSIM_PYTHON_LOOP=1`` for the Python one): wall time
   and the ratio, and the largest relative difference of the fitted values and interval ends.
+- against: the same fit, and the shipped QUBE spec's (two real logs, open loop), by this
+  checkout and by revision ``--against REV`` of its history (unpacked into a temporary
+  folder): wall times, and how far apart their values and interval ends are.
 
-    python tools/bench_replay.py [--repeats 5] [--workers 2] [--parts replay,fit]
+    python tools/bench_replay.py [--repeats 5] [--workers 2] [--parts replay,fit,against] [--against REV]
 """
 
 from __future__ import annotations
@@ -80,10 +83,10 @@ def replay(folder: Path, repeats: int) -> list[str]:
     return lines
 
 
-def _fit(spec: Path, out: Path, workers: int, python_loop: bool) -> tuple[float, dict]:
+def _fit(spec, out: Path, workers: int, python_loop: bool, root: Path = ROOT) -> tuple[float, dict]:
     import json
 
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(root)}
     if python_loop:
         env["FURUTA_COSIM_PYTHON_LOOP"] = "1"
     else:
@@ -97,22 +100,34 @@ def _fit(spec: Path, out: Path, workers: int, python_loop: bool) -> tuple[float,
     return seconds, json.loads((out / "fit.json").read_text())
 
 
-def fit(folder: Path, workers: int) -> list[str]:
-    import yaml
-
-    spec = folder / "spec.yaml"
-    experiment = _log(folder, "fit")
-    spec.write_text(yaml.safe_dump({"name": "balancing", "plant": "qube-servo-3", "experiments": [str(experiment)],
-                                    "free": {n: {"bounds": list(b)} for n, b in FREE.items()}}))
-    c_seconds, c_fit = _fit(spec, folder / "fit-c", workers, False)
-    py_seconds, py_fit = _fit(spec, folder / "fit-python", workers, True)
+def _apart(c_fit: dict, py_fit: dict, names) -> float:
+    """The largest relative difference of two fits' values and interval ends."""
     apart = 0.0
-    for name in FREE:
+    for name in names:
         a, b = c_fit["parameters"][name], py_fit["parameters"][name]
         pairs = [(a["value"], b["value"])] + [(x, y) for key in ("interval", "interval_profile")
                                               for x, y in zip(a.get(key) or [], b.get(key) or [])
                                               if x is not None and y is not None]
         apart = max([apart] + [abs(x - y) / max(abs(y), 1e-300) for x, y in pairs])
+    return apart
+
+
+def _balancing_spec(folder: Path) -> Path:
+    import yaml
+
+    spec = folder / "spec.yaml"
+    if not spec.exists():
+        experiment = _log(folder, "fit")
+        spec.write_text(yaml.safe_dump({"name": "balancing", "plant": "qube-servo-3", "experiments": [str(experiment)],
+                                        "free": {n: {"bounds": list(b)} for n, b in FREE.items()}}))
+    return spec
+
+
+def fit(folder: Path, workers: int) -> list[str]:
+    spec = _balancing_spec(folder)
+    c_seconds, c_fit = _fit(spec, folder / "fit-c", workers, False)
+    py_seconds, py_fit = _fit(spec, folder / "fit-python", workers, True)
+    apart = _apart(c_fit, py_fit, FREE)
     values = ", ".join(f"{n} {c_fit['parameters'][n]['value']:.4g} {c_fit['parameters'][n].get('interval_profile')}"
                        for n in FREE)
     return [f"fit of the 10 s balancing log, {', '.join(FREE)} free, with profiles, {workers} workers:",
@@ -122,11 +137,32 @@ def fit(folder: Path, workers: int) -> list[str]:
             f"  {values}"]
 
 
+def against(folder: Path, workers: int, revision: str) -> list[str]:
+    """This checkout's fits against revision ``revision``'s: the balancing log and the shipped
+    QUBE spec."""
+    other = folder / "revision"
+    subprocess.run(["git", "worktree", "add", "--detach", "-q", str(other), revision], cwd=ROOT, check=True)
+    try:
+        lines = [f"the same fits by this checkout and by {revision} ({workers} workers):"]
+        for name, spec, free in (("balancing log", _balancing_spec(folder), list(FREE)),
+                                 ("qube-servo-3 (real logs)", "qube-servo-3", None)):
+            here_s, here = _fit(spec, folder / f"here-{len(lines)}", workers, False)
+            there_s, there = _fit(spec, folder / f"there-{len(lines)}", workers, False, root=other)
+            names = free or [n for n in here["parameters"] if "." not in n]
+            lines.append(f"  {name}: {here_s:.1f} s here, {there_s:.1f} s at {revision}; values and interval ends "
+                         f"apart at most {_apart(here, there, names):.1e} (relative); verdicts "
+                         f"{'the same' if here['verdict'] == there['verdict'] else 'differ'}")
+        return lines
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(other)], cwd=ROOT, check=False)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--parts", default="replay,fit", type=lambda text: text.split(","))
+    parser.add_argument("--against", metavar="REV", help="with the part against: the revision to compare with")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-replay-") as folder:
         lines = []
@@ -134,6 +170,10 @@ def main() -> int:
             lines += replay(Path(folder), args.repeats)
         if "fit" in args.parts:
             lines += fit(Path(folder), args.workers)
+        if "against" in args.parts:
+            if not args.against:
+                parser.error("--parts against needs --against REV")
+            lines += against(Path(folder), args.workers, args.against)
     print("\n".join(lines))
     return 0
 
