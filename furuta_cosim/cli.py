@@ -1306,7 +1306,8 @@ FLAGS = {"n_calls": "--n-calls", "seed": "--seed", "resume": "--resume", "method
          "timeout": "--timeout", "n_trials": "--n-trials", "wait": "--wait", "starts": "--starts",
          "bootstrap": "--bootstrap", "holdout": "--holdout", "validation": "--validate", "tolerance": "--tolerance",
          "evaluator": "--evaluator external", "plants": "--plant", "zero=False": "--keep-zero",
-         "catch": "--catch", "force=True": "--force", "accept=True": "--accept"}
+         "catch": "--catch", "force=True": "--force", "accept=True": "--accept",
+         "controller=NAME": "--controller NAME"}
 _LEADING = re.compile("^(" + "|".join(sorted(map(re.escape, FLAGS), key=len, reverse=True)) + ")(?=[: ])")
 _QUOTED = re.compile("`(" + "|".join(map(re.escape, FLAGS)) + ")`")
 

@@ -90,3 +90,18 @@ def test_a_fit_the_logs_cannot_separate():
     said = next_step([{"names": ["R_a", "M_f"]}], {"theta0", "theta1"}, plant_has_current=True)
     assert said.endswith("`force=True` fits anyway") and "--" not in said, said
     assert as_flags(said).endswith("--force fits anyway")
+
+
+def test_an_archive_of_a_scenario_without_a_controller(tmp_path):
+    """Reached from Python only (a scenario file names its controllers): export_ssp's argument."""
+    from dataclasses import replace
+
+    from furuta_cosim.cli import as_flags
+    from furuta_cosim.scenario import load_scenario
+    from furuta_cosim.ssp import export_ssp
+
+    scenario = replace(load_scenario("paper-step"), controllers=())
+    line = _refusal(lambda: export_ssp(scenario, None, tmp_path / "a.ssp"))
+    assert line.endswith("names no controller: give one (`controller=NAME`)"), line
+    assert as_flags(line).endswith("give one (--controller NAME)")
+    assert not (tmp_path / "a.ssp").exists()

@@ -56,9 +56,20 @@ def replay(folder: Path, repeats: int) -> list[str]:
     from furuta_cosim.identify.experiment import load_experiment
     from furuta_cosim.identify.replay import closed_loop, open_session, target_for
 
+    from furuta_cosim.fmu.session import PlantSession
+
     target = target_for(plant="qube-servo-3")
     lines = ["replay of a 10 s balancing log (5000 samples), its loop closed through its smoother's angles; "
              f"best of {repeats}:"]
+    with PlantSession.open(target.fmu) as session:   # what no loop can take away: the plant's own step
+        session.set_io(inputs=["V"], outputs=["theta0", "theta1", "i"])
+
+        def steps():
+            session.reset(parameters={"theta1_start": 3.141592653589793})
+            for _ in range(5000):
+                session.step([0.1], 0.002)
+        plant = _best(steps, repeats)
+    lines.append(f"  the plant's 5000 steps alone, called from Python: {1e6 * plant / 5000:.2f} us a step")
     for kind in ("controller", "law"):
         experiment = with_estimate(load_experiment(_log(folder, kind)), target)
         smoother = _best(lambda: estimated_noise(experiment, target, dict(experiment.parameters)), repeats)

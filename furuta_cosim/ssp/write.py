@@ -92,7 +92,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
         scenario = load_scenario(scenario)
     controller = controller or (scenario.controllers[0] if scenario.controllers else None)
     if controller is None:
-        raise ConfigError([f"{scenario.source}: names no controller: give one (--controller)"])
+        raise ConfigError([f"{scenario.source}: names no controller: give one (`controller=NAME`)"])
     output = Path(output)
     if output.suffix != ".ssp":
         raise ConfigError([f"{output}: an SSP archive's name ends in .ssp"])
