@@ -12,6 +12,14 @@ from furuta_cosim.errors import ConfigError
 from helpers import one_line, run_cli
 
 
+def _as_from_a_terminal() -> None:
+    """Ctrl-C as a terminal's command gets it, though the suite runs in the background (which
+    passes SIGINT on ignored: tools/bench_signals.py as_from_a_terminal)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 # -- a plant file's parent (extends:) is named from the file that extends it ----------------------
 
 def _child(tmp_path, parent: str) -> str:
@@ -244,7 +252,8 @@ def test_a_group_signal_leaves_the_paced_board_at_0_v_with_its_record(tmp_path, 
     out = tmp_path / "run"
     process = subprocess.Popen([sys.executable, "-m", "furuta_cosim", "rig", "run", "swingup-qube", "--board", "virtual",
                                 "--duration", "30", "-o", str(out)], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+                               stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               preexec_fn=_as_from_a_terminal)
     lines = []
     for line in process.stderr:   # its progress: the board is running and the motor driven
         lines.append(line)
@@ -416,7 +425,8 @@ def test_a_rig_tuning_stopped_in_its_simulated_prior_resumes_to_the_whole(tmp_pa
     command = [sys.executable, "-m", "furuta_cosim", "tune", spec, "--board", "virtual:fast"]
     assert subprocess.run(command + ["-o", str(tmp_path / "whole")], capture_output=True).returncode == 0
     process = subprocess.Popen(command + ["-o", str(tmp_path / "cut")], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+                               stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               preexec_fn=_as_from_a_terminal)
     seen = []
     for line in process.stderr:
         seen.append(line)

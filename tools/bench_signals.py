@@ -64,10 +64,18 @@ def _commands(part: str, folder: Path):
             outcome)
 
 
+def as_from_a_terminal() -> None:
+    """In the child, before it runs: Ctrl-C as a terminal's command gets it. A benchmark or a
+    test suite started in the background (``cmd &`` in a script, a CI runner) passes SIGINT on
+    ignored, and a command that inherits it ignored rightly keeps ignoring it (nohup's rule):
+    the burst would measure nothing but the run's own end."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _one(command, out: Path, delay: float, number: int, burst: int) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     process = subprocess.Popen(command(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+                               start_new_session=True, preexec_fn=as_from_a_terminal)
     time.sleep(delay)
     sent = time.monotonic()
     alive = process.poll() is None
