@@ -1270,10 +1270,17 @@ def _say(line: str) -> None:
 
 
 def _say_pools() -> None:
-    """What the command did with its worker processes on the way out (each ended in bounded time)."""
-    from furuta_cosim.cosim.worker import stopped_pools
-
-    for line in stopped_pools():
+    """What the command did with its worker processes on the way out (each ended in bounded
+    time). Nothing is imported here: a stop that came during an import (numpy's, cffi's
+    parser) leaves that module half made, and importing again on the way out raised in it."""
+    worker = sys.modules.get("furuta_cosim.cosim.worker")   # no pool was ever started without it
+    if worker is None:
+        return
+    try:
+        lines = worker.stopped_pools()
+    except Exception:  # noqa: BLE001 (the way out says what it can, and goes on)
+        return
+    for line in lines:
         _say(line)
 
 
