@@ -14,6 +14,7 @@ from __future__ import annotations
 import atexit
 import os
 import re
+import signal
 from pathlib import Path
 
 from furuta_cosim.cosim.evaluation import evaluate
@@ -70,6 +71,7 @@ def _start_worker(parent: int, setup, setup_args) -> None:
     # handler it inherited at the fork) left the main process waiting for ever
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _HELD)   # blocked from the fork until now (start_pool)
     _watch_parent(parent)
     # a pool's worker ends by os._exit, without atexit handlers; multiprocessing's own exit
     # finalizers do run there. They remove the extracted FMUs and nothing more: unloading a
@@ -79,17 +81,39 @@ def _start_worker(parent: int, setup, setup_args) -> None:
         setup(*setup_args)
 
 
+def _ready() -> None:
+    """A task that does nothing: the first one, which makes the pool start its workers."""
+
+
+_HELD = {signal.SIGINT, signal.SIGTERM}
+
+
 def start_pool(workers: int, setup=None, setup_args: tuple = ()):
     """A pool of ``workers`` local processes, each with one BLAS thread, each ending when
     this process ends; ``setup(*setup_args)`` runs first in each (what every task shares, sent
-    once per worker)."""
+    once per worker).
+
+    The workers are started here, with SIGINT and SIGTERM blocked from the fork until each has
+    set them to be ignored: a group's Ctrl-C that landed in that window killed the worker with
+    the handler it inherited (a BrokenProcessPool traceback instead of the interrupt, 1 run in
+    20 of tools/bench_signals.py). A signal held back meanwhile reaches this process as the
+    mask is lifted, and the pool is ended before it goes on."""
     from concurrent.futures import ProcessPoolExecutor
 
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD}
-    os.environ.update(SINGLE_THREAD)  # inherited by the workers
+    os.environ.update(SINGLE_THREAD)  # inherited by the workers, forked below
     try:
-        return ProcessPoolExecutor(workers, initializer=_start_worker,
-                                   initargs=(os.getpid(), setup, setup_args))
+        pool = ProcessPoolExecutor(workers, initializer=_start_worker, initargs=(os.getpid(), setup, setup_args))
+        try:
+            previous = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+            try:
+                pool.submit(_ready).result()   # every worker forked now (3.11: all at the first task)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        except BaseException:
+            stop_pool(pool)
+            raise
+        return pool
     finally:
         for key, value in saved.items():
             if value is None:
