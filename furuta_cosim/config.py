@@ -116,6 +116,26 @@ def load_yaml(path: str | Path) -> Any:
 KIND_FOLDERS = ("controllers", "plants", "tuning")
 
 
+def key_line(path: str | Path, keys: tuple) -> int | None:
+    """The line (1-based) of the nested key ``keys`` in the YAML file ``path``, or None when the
+    file or the key cannot be found (a message then says the key alone)."""
+    try:
+        node = yaml.compose(Path(path).read_text(encoding="utf-8"), Loader=yaml.SafeLoader)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+    line = None
+    for key in keys:
+        if not isinstance(node, yaml.MappingNode):
+            return None
+        for key_node, value in node.value:
+            if getattr(key_node, "value", None) == str(key):
+                node, line = value, key_node.start_mark.line + 1
+                break
+        else:
+            return None
+    return line
+
+
 def resolve_file(name: str | Path, folder: Path, kind: str, *, beside: Path | None = None,
                  also: tuple[str, ...] = ()) -> Path:
     """A file path, or a name of ``<folder>/<name>.yaml`` (``folder``: the shipped files of

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 from dataclasses import dataclass, field
 
 from furuta_cosim.errors import FmuError
@@ -25,9 +26,22 @@ class DeclarationError(FmuError):
     ``variable`` names the variable at fault when one is, and ``reason`` says why, so that a
     caller can point at the parameter file's key instead."""
 
-    def __init__(self, message: str, variable: str | None = None, reason: str = ""):
+    def __init__(self, message: str, variable: str | None = None, reason: str = "",
+                 where: tuple[str, int] | None = None):
         super().__init__(message)
         self.variable, self.reason = variable, reason or message
+        # (file, line) of the declaration's call that registered the variable at fault, when
+        # that call is outside this package (a user's plant folder)
+        self.where = where
+
+
+def _caller() -> tuple[str, int] | None:
+    """The file and line of the first caller outside this module: where a plant's
+    ``declare()`` registered the variable (a user's ``model.py`` line, for its messages)."""
+    frame = sys._getframe(1)
+    while frame is not None and frame.f_code.co_filename == __file__:
+        frame = frame.f_back
+    return (frame.f_code.co_filename, frame.f_lineno) if frame is not None else None
 
 
 @dataclass(frozen=True)
@@ -47,6 +61,8 @@ class Real:
     minimum : float, optional
         The smallest physical value (a friction or a stiffness is >= 0): the model
         description's ``min``, which importers check before they set a value.
+    maximum : float, optional
+        The largest physical value (an efficiency is <= 1): the model description's ``max``.
     """
 
     name: str
@@ -56,6 +72,7 @@ class Real:
     description: str = ""
     positive: bool = False
     minimum: float | None = None
+    maximum: float | None = None
 
 
 # RK4 substeps per communication step, at most: beyond it one step costs more than a
@@ -102,9 +119,34 @@ class Model:
     # name -> value reference, kept as variables are registered (a linear plant or a controller
     # declares tens of thousands: a scan per registration made declaring quadratic)
     _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False)
+    # name -> (file, line) of the call that registered it (see _caller)
+    where: dict[str, tuple[str, int] | None] = field(default_factory=dict, repr=False, compare=False)
+
+    def parameter(self, values, name: str, default: float, unit: str, description: str, *,
+                  positive: bool = False, minimum: float | None = None,
+                  maximum: float | None = None) -> None:
+        """Register the Real parameter ``name``: its start is ``values[name]`` (the plant
+        file's), else ``default``; ``positive``, ``minimum`` and ``maximum`` give its physical
+        range, which every value of it must respect (a plant file's, an importer's)."""
+        start = values.get(name, default) if values is not None else default
+        try:
+            start = float(start)
+        except (TypeError, ValueError):
+            raise DeclarationError(f"{self.identifier}.{name}: expected a number, got {start!r}",
+                                   name, f"expected a number, got {start!r}", _caller()) from None
+        self.register_variable(Real(name, "parameter", start=start, unit=unit, description=description,
+                                    positive=positive, minimum=minimum, maximum=maximum))
 
     def register_variable(self, variable: Real | Integer) -> None:
         """Add a variable; its value reference is its position of registration."""
+        try:
+            self._register(variable)
+        except DeclarationError as error:
+            error.where = error.where or _caller()
+            raise
+        self.where[variable.name] = _caller()
+
+    def _register(self, variable: Real | Integer) -> None:
         if not _NAME.match(variable.name):
             raise DeclarationError(f"{self.identifier}: invalid variable name {variable.name!r}")
         if variable.name in self._references:
@@ -133,6 +175,13 @@ class Model:
                 raise DeclarationError(
                     f"{self.identifier}.{variable.name}: start {variable.start} must be >= {variable.minimum:g}",
                     variable.name, f"must be >= {variable.minimum:g}, got {variable.start:g}")
+            if variable.maximum is not None and variable.start > variable.maximum:
+                raise DeclarationError(
+                    f"{self.identifier}.{variable.name}: start {variable.start} must be <= {variable.maximum:g}",
+                    variable.name, f"must be <= {variable.maximum:g}, got {variable.start:g}")
+        if variable.minimum is not None and variable.maximum is not None and variable.minimum > variable.maximum:
+            raise DeclarationError(f"{self.identifier}.{variable.name}: minimum {variable.minimum:g} is "
+                                   f"above maximum {variable.maximum:g}", variable.name)
         self._references[variable.name] = ("real", len(self.reals))
         self.reals.append(variable)
 

@@ -27,7 +27,7 @@ from furuta_cosim.files import atomic, copy, temporary_folder
 from furuta_cosim.fmu import versions
 from furuta_cosim.fmu.compiler import CFLAGS, building, compiler, intact, seal, unwritable
 from furuta_cosim.fmu.declaration import DeclarationError, Model
-from furuta_cosim.fmu.plants import NOT_PLANTS, PlantSet, load_plant, models
+from furuta_cosim.fmu.plants import NOT_PLANTS, PlantSet, load_plant, model_folder, models
 
 # FURUTA_COSIM_EXTRA_CFLAGS adds flags, for example sanitizers in the tests; they are part of
 # the cache key, so such builds never mix with ordinary ones
@@ -57,6 +57,10 @@ def parameter_ranges(plant: PlantSet) -> dict[str, tuple[float, bool]]:
 def declaration(plant: PlantSet) -> Model:
     """Run the plant's ``declare()`` with its parameter set or linear spec (only a model of
     ``fmu_src/``, by its plain name: code named anywhere else is never run)."""
+    if plant.folder is not None:
+        from furuta_cosim.fmu.folder import declare_folder
+
+        return declare_folder(plant)
     if plant.model not in models() and not (plant.model in NOT_PLANTS and plant.linear is not None):
         raise ConfigError([f"{plant.path}: model: expected one of {', '.join(models())}, "
                            f"got {plant.model!r}"])
@@ -75,20 +79,26 @@ def declaration(plant: PlantSet) -> Model:
             if error.variable in plant.parameters:
                 raise ConfigError([f"{plant.path}: parameters.{error.variable}: {error.reason}"]) from None
             raise
-        # the declaration takes int() of an Integer's start: 2.5 would quietly become 2
-        fractional = [f"{plant.path}: parameters.{v.name}: expected a whole number, got "
-                      f"{plant.parameters[v.name]:g}" for v in model.integers
-                      if v.name in plant.parameters and plant.parameters[v.name] != int(plant.parameters[v.name])]
-        if fractional:
-            raise ConfigError(fractional)
-        known = {v.name for v in model.reals if v.causality == "parameter"}
-        known |= {v.name for v in model.integers}
-        unknown = sorted(set(plant.parameters) - known)
-        if unknown:
-            raise ConfigError([f"{plant.path}: parameters.{name}: unknown parameter of model "
-                               f"{plant.model}" for name in unknown])
+        checked(plant, model)
     model.check()
     return model
+
+
+def checked(plant: PlantSet, model: Model) -> None:
+    """The plant file's parameters against the declaration: whole numbers where it declares an
+    Integer, and no name it does not declare."""
+    # the declaration takes int() of an Integer's start: 2.5 would quietly become 2
+    fractional = [f"{plant.path}: parameters.{v.name}: expected a whole number, got "
+                  f"{plant.parameters[v.name]:g}" for v in model.integers
+                  if v.name in plant.parameters and plant.parameters[v.name] != int(plant.parameters[v.name])]
+    if fractional:
+        raise ConfigError(fractional)
+    known = {v.name for v in model.reals if v.causality == "parameter"}
+    known |= {v.name for v in model.integers}
+    unknown = sorted(set(plant.parameters) - known)
+    if unknown:
+        raise ConfigError([f"{plant.path}: parameters.{name}: unknown parameter of model "
+                           f"{Path(plant.model).name}" for name in unknown])
 
 
 def _c_name(name: str) -> str:
@@ -187,6 +197,8 @@ def generate_model_description(model: Model, guid: str, sources: list[str]) -> s
             real["unit"] = v.unit
         if v.minimum is not None:
             real["min"] = _number(v.minimum)
+        if v.maximum is not None:
+            real["max"] = _number(v.maximum)
         element = ET.SubElement(variables, "ScalarVariable", attributes)
         index[v.name] = k + 1
         ET.SubElement(element, "Real", real)
@@ -269,6 +281,8 @@ def generate_model_description_3(model: Model, guid: str) -> str:
             attributes["unit"] = v.unit
         if v.minimum is not None:
             attributes["min"] = _number(v.minimum)
+        if v.maximum is not None:
+            attributes["max"] = _number(v.maximum)
         if v.name in derivative_of:
             attributes["derivative"] = str(model.value_reference(derivative_of[v.name]))
         ET.SubElement(variables, "Float64", attributes)
@@ -329,7 +343,7 @@ def build_fmu(plant: PlantSet | str = "furuta", output: str | Path | None = None
     if not isinstance(plant, PlantSet):
         plant = load_plant(plant)
     memo = repr((plant.model, sorted(plant.parameters.items()), plant.linear,
-                 _source_stamps(plant.model), paths.cache(), fmi_version))
+                 _source_stamps(model_folder(plant)), paths.cache(), fmi_version))
     target, stamp = _BUILT.get(memo, (None, None))
     if target is None or _stamp(target) != stamp:
         target = _build_cached(plant, log, fmi_version)
@@ -355,8 +369,8 @@ def _stamp(path: Path) -> tuple | None:
     return status.st_mtime_ns, status.st_size, status.st_ino
 
 
-def _source_stamps(model: str) -> tuple:
-    files = [*(paths.fmu_sources() / "common").iterdir(), *(paths.fmu_sources() / model).iterdir()]
+def _source_stamps(folder: Path) -> tuple:
+    files = [*(paths.fmu_sources() / "common").iterdir(), *folder.iterdir()]
     return tuple(sorted((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files if f.is_file()))
 
 
@@ -364,7 +378,7 @@ def _build_cached(plant: PlantSet, log, fmi_version: str = "2.0") -> Path:
     """The FMU of ``plant`` in the cache, built there if it is not (or is damaged). The key
     does not depend on which compiler is installed, so a warm cache needs none."""
     model = declaration(plant)
-    model_dir = paths.fmu_sources() / plant.model
+    model_dir = model_folder(plant)
     common = paths.fmu_sources() / "common"
     version = versions.fmi_version(fmi_version)
     files = {name: (common / name).read_text() for name in version.glue}
@@ -384,10 +398,11 @@ def _build_cached(plant: PlantSet, log, fmi_version: str = "2.0") -> Path:
     with building(target):  # a second process building the same entry waits, then finds it
         if not intact(target, log):
             if log:
-                log(f"building {model.identifier} from fmu_src/{plant.model} ({plant.path.name})")
+                where = plant.folder if plant.folder is not None else f"fmu_src/{plant.model}"
+                log(f"building {model.identifier} from {where} ({plant.path.name})")
             files["model_vars.h"] = generate_header(model, guid)
             try:
-                _build(model, files, guid, cc, target, fmi_version)
+                _build(model, files, guid, cc, target, fmi_version, plant.folder)
                 seal(target)
             except OSError as error:
                 raise unwritable(error) from None
@@ -409,7 +424,8 @@ def _accepts_its_defaults(plant: PlantSet, target: Path) -> None:
         raise ConfigError([f"{plant.path}: parameters: the FMU refuses these values: {reason}"]) from None
 
 
-def _build(model: Model, files: dict, guid: str, cc: str, target: Path, fmi_version: str = "2.0") -> None:
+def _build(model: Model, files: dict, guid: str, cc: str, target: Path, fmi_version: str = "2.0",
+           folder: Path | None = None) -> None:
     sources = sorted(files)
     work = temporary_folder("build")
     try:
@@ -423,6 +439,10 @@ def _build(model: Model, files: dict, guid: str, cc: str, target: Path, fmi_vers
         except OSError as error:
             raise FmuError(f"cannot run the C compiler {cc}: {error.strerror}") from None
         if result.returncode != 0:
+            if folder is not None:   # a user's equations: the first error, at its file and line
+                from furuta_cosim.fmu.folder import compile_error
+
+                raise ConfigError([compile_error(result.stderr, work, folder)])
             raise FmuError(f"compiling {model.identifier} failed:\n{result.stderr.strip()}", multiline=True)
         version = versions.fmi_version(fmi_version)
         description = version.model_description(model, guid, sources)

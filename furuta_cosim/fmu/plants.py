@@ -52,6 +52,47 @@ class PlantSet:
     # rig's sensors read it (``sensors``): see RIG_LIMITS and SENSORS
     limits: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
     sensors: Mapping[str, float] = field(default_factory=lambda: Frozen({}))
+    # a user's plant folder (its model.py and model.c) when ``model`` names one, else None
+    folder: Path | None = None
+
+
+def model_folder(plant: PlantSet) -> Path:
+    """Where the plant's declaration and equations are: the user's folder it names, or its
+    model's folder in ``fmu_src/``."""
+    return plant.folder if plant.folder is not None else paths.fmu_sources() / plant.model
+
+
+def folder_problem(folder: Path) -> str | None:
+    """Why ``folder`` is not a plant folder (None when it is): it holds the declaration
+    ``model.py`` and the equations ``model.c``."""
+    if not folder.is_dir():
+        return f"{folder}: no such folder"
+    missing = [name for name in ("model.py", "model.c") if not (folder / name).is_file()]
+    if missing:
+        return (f"{folder}: a plant folder holds model.py (the declaration) and model.c (the "
+                f"equations); {' and '.join(missing)} missing (`furuta-cosim new-plant NAME` "
+                "writes a folder to start from)")
+    return None
+
+
+def folder_plant(folder: str | Path) -> PlantSet:
+    """The plant of a user's plant folder at its declared defaults (``build-fmu FOLDER``)."""
+    folder = Path(folder)
+    problem = folder_problem(folder)
+    if problem:
+        raise ConfigError([problem])
+    folder = folder.resolve()
+    return PlantSet(folder.name, folder / "model.py", str(folder),
+                    f"the plant of {folder.name}/ at its declared defaults", folder=folder)
+
+
+def is_folder(name: str | Path, beside: Path | None = None) -> Path | None:
+    """The folder ``name`` is, when it is one (beside the naming file first), else None."""
+    path = Path(name)
+    for candidate in ([beside / path] if beside is not None and not path.is_absolute() else []) + [path]:
+        if candidate.is_dir():
+            return candidate
+    return None
 
 
 def voltage_limit(plant: PlantSet, parameters: Mapping[str, float] | None = None) -> float | None:
@@ -77,7 +118,11 @@ def content_sha256(plant: PlantSet) -> str:
     if plant.linear is not None:
         body = {"model": plant.model, "linear": repr(plant.linear)}
     else:
-        body = {"model": plant.model, "parameters": dict(sorted(plant.parameters.items())),
+        model = plant.model
+        if plant.folder is not None:   # a user's folder: what it holds, wherever it is
+            model = {name: hashlib.sha256((plant.folder / name).read_bytes()).hexdigest()
+                     for name in ("model.py", "model.c")}
+        body = {"model": model, "parameters": dict(sorted(plant.parameters.items())),
                 "control_period": list(plant.control_period), "limits": dict(plant.limits),
                 "sensors": dict(plant.sensors)}
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
@@ -99,8 +144,9 @@ NOT_PLANTS = ("source",)
 
 
 def models() -> list[str]:
-    """The plant models of ``fmu_src/`` (a folder with a model.py and a plain name): the only
-    values a plant file's ``model`` may take. A parameter file never names code elsewhere."""
+    """The plant models of ``fmu_src/`` (a folder with a model.py and a plain name): the names
+    a plant file's ``model`` may take; any other value is the path of a user's plant folder,
+    whose ``model.py`` runs as the plant's declaration (a folder is code: name folders you trust)."""
     return sorted(p.parent.name for p in paths.fmu_sources().glob("*/model.py")
                   if re.fullmatch(r"[a-z][a-z0-9_]*", p.parent.name) and p.parent.name not in NOT_PLANTS)
 
@@ -139,6 +185,9 @@ def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = (),
     ConfigError
         Listing every problem of the file (and of the files it extends).
     """
+    folder = is_folder(name, beside) if str(name) not in model_names() else None
+    if folder is not None:
+        return folder_plant(folder)
     return _load(plant_path(name, also, beside), seen=())
 
 
@@ -164,9 +213,18 @@ def _load(path: Path, seen: tuple) -> PlantSet:
         if key in other and key not in own:
             check.fail(key, f"not a key of a {model} plant (its keys: model, description, "
                             f"{', '.join(k for k in own if k != 'description')})")
-    if model not in models():
-        check.fail("model", f"expected the name of a plant model of fmu_src ({', '.join(models())}), "
-                            f"got {_brief(model)}")
+    folder = None
+    if model not in models() and model != "linear" and _names_folder(model, path):
+        # a user's plant folder, beside this file: model: path/to/folder
+        folder = (path.parent / model).resolve()
+        problem = folder_problem(folder)
+        if problem:
+            check.fail("model", problem)
+            check.done()
+        model = str(folder)
+    elif model not in models():
+        check.fail("model", f"expected the name of a plant model of fmu_src ({', '.join(models())}) "
+                            f"or a plant folder's path (with a /, beside this file), got {_brief(model)}")
         check.done()
     description = check.text(top["description"], "description") if "description" in top else ""
     if model == "linear":
@@ -220,7 +278,14 @@ def _load(path: Path, seen: tuple) -> PlantSet:
                       if isinstance(top["provenance"], dict) else ())
     check.done()
     return PlantSet(path.stem, path, model, str(description), Frozen(parameters),
-                    control_period=period, limits=Frozen(limits), sensors=Frozen(sensors))
+                    control_period=period, limits=Frozen(limits), sensors=Frozen(sensors),
+                    folder=folder)
+
+
+def _names_folder(model: str, path: Path) -> bool:
+    """A plant file's ``model`` names a folder: a path (``./cart``, ``plants/cart``) or a
+    folder beside the file."""
+    return "/" in model or model in (".", "..") or (path.parent / model).is_dir()
 
 
 # what a supervisor holds a rig to; each is optional, and a rig plant without ``voltage`` is
