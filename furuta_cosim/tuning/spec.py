@@ -265,7 +265,7 @@ def load_spec(name: str | Path, plant: str | Path | None = None,
             bounds = " and ".join(f"{name} {v:g}" for name, v in (("min", low), ("max", high)) if v is not None)
             raise ConfigError([f"{path}: controller.period: {period:g} s is outside what the "
                                f"{given.name} plant allows ({given.path.name}: limits.control_period: {bounds})"])
-        plant = _portable_model(str(given.path), path.parent) if where != "plant=" else str(given.path.resolve())
+        plant = _portable_model(str(given.path.resolve()), path.parent) if where != "plant=" else str(given.path.resolve())
         plant = given.name if _is_shipped(given) else plant
         model_name = f"derived:{plant}"
     try:
