@@ -47,6 +47,19 @@ def cmd_build_fmu(args) -> int:
     return 0
 
 
+def cmd_new_plant(args) -> int:
+    from furuta_cosim.fmu.newplant import new_plant
+
+    folder = new_plant(args.name)
+    print(f"wrote {folder}/: model.py (the declaration), model.c (the equations), plant.yaml "
+          "(a parameter set), step.yaml (a scenario)\nnext:\n"
+          f"  furuta-cosim build-fmu {folder}\n"
+          f"  furuta-cosim linearize --plant {folder}/plant.yaml\n"
+          f"  furuta-cosim design lqr --plant {folder}/plant.yaml --continuous -o {folder}/lqr.yaml\n"
+          f"  furuta-cosim simulate {folder}/step.yaml")
+    return 0
+
+
 def cmd_linearize(args) -> int:
     from pathlib import Path
 
@@ -895,12 +908,18 @@ def _add_plants_commands(commands) -> None:
 
     p = commands.add_parser("build-fmu", help="build a plant FMU (cached) and print its path")
     p.add_argument("model", nargs="?", default="furuta",
-                   help="model or plant file: furuta (default), table-literal, toy, or a .yaml path")
+                   help="model or plant file: furuta (default), table-literal, toy, a .yaml path, "
+                        "or a plant folder (model.py and model.c)")
     p.add_argument("-o", "--output", help="also copy the FMU to this file or folder")
     p.add_argument("--fmi-version", choices=tuple(VERSIONS), default="2.0",
                    help="FMI 2.0 (default) or 3.0; both with co-simulation, and model exchange "
                         "when the model is continuous")
     p.set_defaults(handler=cmd_build_fmu)
+
+    p = commands.add_parser("new-plant", help="write a plant folder to start from: a declaration "
+                                              "(model.py), its equations (model.c), a plant file")
+    p.add_argument("name", help="the new folder (its name names the FMU)")
+    p.set_defaults(handler=cmd_new_plant)
 
     p = commands.add_parser("linearize", help="linearize a plant FMU at its start point")
     p.add_argument("--plant", "--params", dest="params", default="paper-calibrated",

@@ -181,3 +181,27 @@ def test_a_folder_without_its_equations_says_what_a_plant_folder_holds(tmp_path)
     plant = tmp_path / "mine.yaml"
     plant.write_text("model: mine\n")
     assert "plant.model" not in _one_line(lambda: load_plant(plant))
+
+
+# --- new-plant: a folder to start from ---------------------------------------------------
+
+def test_new_plant_writes_a_folder_that_builds_designs_and_simulates(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["new-plant", "my-spring"]) == 0
+    assert sorted(p.name for p in (tmp_path / "my-spring").iterdir()) == ["model.c", "model.py", "plant.yaml", "step.yaml"]
+    assert "simulate my-spring/step.yaml" in capsys.readouterr().out
+    assert declaration(folder_plant("my-spring")).identifier == "MySpring"
+    assert main(["design", "lqr", "--plant", "my-spring/plant.yaml", "--continuous", "-o", "my-spring/lqr.yaml"]) == 0
+    assert main(["simulate", "my-spring/step.yaml", "-o", "out", "--json"]) == 0
+    import json
+
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    run = metrics["controllers"]["lqr"]
+    assert run["tracked"] == "x" and run["input"] == "F" and run["units"]["x"] == "m"
+    assert run["metrics"]["x.SteadyStateValue"] == pytest.approx(0.1, rel=1e-3)   # the prefilter's work
+    capsys.readouterr()
+    assert main(["new-plant", "my-spring"]) == 2
+    assert "my-spring: exists already" in capsys.readouterr().err
+    assert main(["new-plant", "9lives"]) == 2
+    assert "starts with a letter" in capsys.readouterr().err
+    assert not list(tmp_path.glob(".*partial*"))
