@@ -446,11 +446,13 @@ class Report:
 def scenario_files(names: Sequence[str | Path] | None) -> list[Path]:
     """The scenario files named (files, names of ``scenarios/``, or folders of scenario
     files, rig checks among them: :mod:`furuta_cosim.rig.check`); none named: every shipped
-    scenario."""
+    scenario: those of ``scenarios/`` and of each example tree in it (a folder of scenarios
+    with its own ``baselines/``, as ``scenarios/cart-pole/``)."""
     from furuta_cosim.scenario import scenario_path
 
     if not names:
-        return sorted(paths.scenarios().glob("*.yaml"))
+        examples = [b.parent for b in sorted(paths.scenarios().glob("*/baselines")) if b.parent.name != "baselines"]
+        return sorted(paths.scenarios().glob("*.yaml")) + [f for tree in examples for f in sorted(tree.glob("*.yaml"))]
     found = []
     for name in names:
         path = Path(name)

@@ -90,7 +90,11 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
         raise ConfigError([f"fmi_version: expected 2.0 or 3.0, got {fmi_version!r}"])
     if isinstance(scenario, (str, Path)):
         scenario = load_scenario(scenario)
-    controller = controller or (scenario.controllers[0] if scenario.controllers else None)
+    if controller is None and scenario.controllers:
+        # the scenario's own controller, resolved beside the scenario that names it
+        from furuta_cosim.controllers import controller_path
+
+        controller = controller_path(scenario.controllers[0], beside=scenario.folder)
     if controller is None:
         raise ConfigError([f"{scenario.source}: names no controller: give one (`controller=NAME`)"])
     output = Path(output)
@@ -106,7 +110,7 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
         prepared = prepare(variant)
         loop_only(prepared, "an SSP of the plant, the controller and the scenario's source",
                   ("reference", "actuator limit", "noise", "disturbances"))
-        name = set_name(load_plant(variant.plant)) if variant.plant else variant.name
+        name = set_name(load_plant(variant.plant, beside=variant.folder)) if variant.plant else variant.name
         if not SET_NAME.fullmatch(name):
             raise ConfigError([f"{given or variant.plant}: its name {name!r} is no parameter set's name "
                                "(letters, digits, '_', '.', '-'; at most 64)"])
@@ -121,7 +125,8 @@ def export_ssp(scenario, controller: str | Path | None, output: str | Path, *, p
             raise ConfigError([f"{s['plant']}: its loop differs from {sets[0]['plant']}'s (period, "
                                "length, input or states): one SSP holds one loop"])
     plant_fmu = (first.fmu if fmi_version == "2.0"
-                 else build_fmu(load_plant(sets[0]["plant"] or "furuta"), log=log, fmi_version="3.0"))
+                 else build_fmu(first.plant if first.plant is not None else load_plant(), log=log,
+                                fmi_version="3.0"))
     source = scenario_source(first, scenario.name) if needs_source(first) else None
     if source is not None:
         for s in sets[1:]:
