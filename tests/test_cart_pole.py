@@ -124,3 +124,43 @@ def test_analyze_gives_the_loop_of_the_plant_s_own_states(capsys):
     assert code == 0
     result = json.loads(out)
     assert result["stable"] is True
+
+
+def _chirp_log(folder, truth):
+    from furuta_cosim.identify.synthetic import open_loop_log
+
+    t = 0.002 * np.arange(2500)    # 5 s, the pendulum hanging; a chirp of 0.3 to 5.3 Hz on the motor
+    return open_loop_log(folder, EXAMPLE / "plants" / "ip02.yaml",
+                         {"V": 2.0 * np.sin(2 * np.pi * (0.3 * t + 0.5 * t * t))}, period=0.002,
+                         outputs={"x_c": ("m", 2.275e-5), "alpha": ("rad", 2 * np.pi / 4096)},
+                         truth=truth, start={"alpha": np.pi}, name="chirp")
+
+
+def test_identify_finds_the_truth_of_a_synthetic_log_within_its_intervals(tmp_path):
+    from furuta_cosim.identify.run import identify
+
+    truth = {"B_eq": 5.4, "B_p": 0.004}   # the manual's 4.3 and 0.0024 as the start
+    experiment = _chirp_log(tmp_path / "logs", truth)
+    spec = tmp_path / "dampings.yaml"
+    spec.write_text(f"name: dampings\nplant: {EXAMPLE / 'plants' / 'ip02.yaml'}\n"
+                    f"experiments: [{experiment}]\n"
+                    "free:\n  B_eq: {bounds: [0.5, 20.0]}\n  B_p: {bounds: [0.0, 0.05]}\n")
+    document = identify(spec, tmp_path / "fit")
+    assert document["verdict"]["trusted"] is True
+    for name, value in truth.items():
+        found = document["parameters"][name]
+        low, high = found["interval"]
+        assert low <= value <= high and found["verdict"] == "identifiable", (name, found)
+        assert abs(found["value"] - value) < 1e-3 * value
+    fitted = yaml.safe_load((tmp_path / "fit" / "plant.yaml").read_text())
+    assert fitted["parameters"]["B_eq"] == pytest.approx(5.4, rel=1e-3)
+
+
+def test_a_closed_loop_log_of_another_plant_is_refused_in_one_line(tmp_path, capsys):
+    from helpers import one_line
+
+    experiment = _chirp_log(tmp_path, None)
+    text = experiment.read_text() + f"loop: {{controller: {EXAMPLE / 'controllers' / 'lqr-ip02.yaml'}}}\n"
+    experiment.write_text(text)
+    line = one_line(capsys, "replay", str(experiment), "--plant", str(EXAMPLE / "plants" / "ip02.yaml"))
+    assert "loop: a closed-loop log is replayed through the Furuta pendulum's loop" in line

@@ -1,13 +1,16 @@
-"""Microseconds per closed-loop control step of the Furuta FMU, three ways, in one run.
+"""Microseconds per closed-loop control step of a plant FMU, three ways, in one run: the
+Furuta pendulum's, and the cart-pole example's (a plant folder) beside it.
 
-    python tools/bench_fmu.py [--steps 5000] [--repeats 7]
+    python tools/bench_fmu.py [--steps 5000] [--repeats 7] [--plants furuta cart-pole]
 
 - floor:    a C program that dlopens the same FMU binary and runs the same loop;
 - session:  furuta_cosim's PlantSession (cffi, prepared buffers);
 - fmpy:     fmpy's FMU2Slave wrapper (setReal / doStep / getReal with Python lists).
 
-The loop: read the 5 states, u = -K x with plain floats (the printed LQR gain), set V,
-doStep 1 ms with 10 RK4 substeps; released from theta1 = 0.1 rad. Best of the repeats.
+The loop: read the states, u = -K x with plain floats, set V, doStep 1 ms with 10 RK4
+substeps; released from the pendulum 0.1 rad off upright. The Furuta: its 5 states and the
+paper's printed LQR gain; the cart-pole (scenarios/cart-pole): its 4 states and lqr-ip02's
+gain. Best of the repeats.
 """
 
 from __future__ import annotations
@@ -17,17 +20,47 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from fmpy.fmi2 import FMU2Slave
 
 from furuta_cosim.fmu.compiler import compiler
 from furuta_cosim.fmu.exporter import build_fmu, fmi_headers
+from furuta_cosim.fmu.plants import load_plant
 from furuta_cosim.fmu.session import FmuBinary, PlantSession
 
-K = [-0.31, -5.26, 70.74, 8.92, 0.17]
-STATES = ["theta0", "dtheta0", "theta1", "dtheta1", "i"]
 H = 1e-3
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Loop:
+    """One plant's benchmark loop: its FMU, the fed-back states, their gain and the start
+    parameter that releases the pendulum."""
+
+    fmu: Path
+    states: list
+    K: list
+    start: str
+
+
+def furuta() -> Loop:
+    return Loop(build_fmu("furuta"), ["theta0", "dtheta0", "theta1", "dtheta1", "i"],
+                [-0.31, -5.26, 70.74, 8.92, 0.17], "theta1_start")
+
+
+def cart_pole() -> Loop:
+    import yaml
+
+    example = ROOT / "scenarios" / "cart-pole"
+    plant = load_plant(example / "plants" / "ip02.yaml")
+    plant = replace(plant, parameters={**plant.parameters, "n_substeps": 10})   # as the Furuta's
+    K = yaml.safe_load((example / "controllers" / "lqr-ip02.yaml").read_text())["K"]
+    return Loop(build_fmu(plant), ["x_c", "dx_c", "alpha", "dalpha"], K, "alpha_start")
+
+
+PLANTS = {"furuta": furuta, "cart-pole": cart_pole}
 
 FLOOR_C = r"""
 #include <dlfcn.h>
@@ -51,17 +84,17 @@ int main(int argc, char **argv) {
     fmi2DoStepTYPE *do_step = (fmi2DoStepTYPE *)dlsym(lib, "fmi2DoStep");
     fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
     fmi2Component c = instantiate("floor", fmi2CoSimulation, argv[2], "", &callbacks, 0, 0);
-    const fmi2ValueReference out[5] = {VR_OUT}, in = VR_V, start = VR_START;
-    const double K[5] = {GAIN}, theta1 = 0.1;
-    double x[5], u, best = 1e9, t0;
+    const fmi2ValueReference out[N] = {VR_OUT}, in = VR_V, start = VR_START;
+    const double K[N] = {GAIN}, released = 0.1;
+    double x[N], u, best = 1e9, t0;
     for (r = 0; r < repeats; r++) {
         reset(c); setup(c, 0, 0.0, 0.0, 0, 0.0); enter(c);
-        set_real(c, &start, 1, &theta1); leave(c);
+        set_real(c, &start, 1, &released); leave(c);
         t0 = now();
         for (k = 0; k < steps; k++) {
-            get_real(c, out, 5, x);
+            get_real(c, out, N, x);
             u = 0.0;
-            for (j = 0; j < 5; j++) u -= K[j] * x[j];
+            for (j = 0; j < N; j++) u -= K[j] * x[j];
             set_real(c, &in, 1, &u);
             if (do_step(c, k * H, H, fmi2True) != fmi2OK) return 1;
         }
@@ -73,14 +106,15 @@ int main(int argc, char **argv) {
 """
 
 
-def floor(fmu: Path, steps: int, repeats: int) -> float:
-    with FmuBinary(fmu) as binary, tempfile.TemporaryDirectory() as work:
-        vr = {name: binary.variable(name).valueReference for name in STATES + ["V", "theta1_start"]}
+def floor(loop: Loop, steps: int, repeats: int) -> float:
+    with FmuBinary(loop.fmu) as binary, tempfile.TemporaryDirectory() as work:
+        vr = {name: binary.variable(name).valueReference for name in loop.states + ["V", loop.start]}
         source = Path(work) / "floor.c"
         source.write_text(FLOOR_C)
         program = Path(work) / "floor"
-        defines = [f"-DVR_OUT={','.join(str(vr[s]) for s in STATES)}", f"-DVR_V={vr['V']}",
-                   f"-DVR_START={vr['theta1_start']}", f"-DGAIN={','.join(map(str, K))}", f"-DH={H}"]
+        defines = [f"-DN={len(loop.states)}", f"-DVR_OUT={','.join(str(vr[s]) for s in loop.states)}",
+                   f"-DVR_V={vr['V']}", f"-DVR_START={vr[loop.start]}",
+                   f"-DGAIN={','.join(map(str, loop.K))}", f"-DH={H}"]
         subprocess.run([compiler(), "-O2", "-std=c99", "-D_POSIX_C_SOURCE=199309L",
                         f"-I{fmi_headers()}", *defines, str(source), "-o", str(program), "-ldl"],
                        check=True)
@@ -90,32 +124,36 @@ def floor(fmu: Path, steps: int, repeats: int) -> float:
         return float(result.stdout)
 
 
-def session(fmu: Path, steps: int, repeats: int) -> float:
+def session(loop: Loop, steps: int, repeats: int) -> float:
     best = float("inf")
-    with PlantSession.open(fmu) as plant:
-        plant.set_io(["V"], STATES)
-        k0, k1, k2, k3, k4 = K
+    with PlantSession.open(loop.fmu) as plant:
+        plant.set_io(["V"], loop.states)
+        gains = list(zip(loop.K, range(len(loop.states))))
         for _ in range(repeats):
-            plant.reset({"theta1_start": 0.1})
-            x = plant.get(STATES)
+            plant.reset({loop.start: 0.1})
+            x = plant.get(loop.states)
             step = plant.step
             start = time.perf_counter()
             for _ in range(steps):
-                x = step([-(k0 * x[0] + k1 * x[1] + k2 * x[2] + k3 * x[3] + k4 * x[4])], H)
+                u = 0.0
+                for g, j in gains:
+                    u -= g * x[j]
+                x = step([u], H)
             best = min(best, time.perf_counter() - start)
     return best / steps * 1e6
 
 
-def fmpy_wrapper(fmu: Path, steps: int, repeats: int) -> float:
+def fmpy_wrapper(loop: Loop, steps: int, repeats: int) -> float:
     best = float("inf")
-    with FmuBinary(fmu) as binary:
+    K, STATES = loop.K, loop.states
+    with FmuBinary(loop.fmu) as binary:
         md = binary.model_description
         slave = FMU2Slave(guid=md.guid, unzipDirectory=str(binary.directory),
                           modelIdentifier=binary.identifier, instanceName="fmpy")
         slave.instantiate()
         out = [binary.variable(s).valueReference for s in STATES]
         vin = [binary.variable("V").valueReference]
-        start_vr = [binary.variable("theta1_start").valueReference]
+        start_vr = [binary.variable(loop.start).valueReference]
         for r in range(repeats):
             if r:
                 slave.reset()
@@ -138,15 +176,21 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--plants", nargs="+", choices=tuple(PLANTS), default=list(PLANTS))
     args = parser.parse_args()
-    fmu = build_fmu("furuta")
-    results = {"floor (C loop)": floor(fmu, args.steps, args.repeats),
-               "PlantSession": session(fmu, args.steps, args.repeats),
-               "fmpy FMU2Slave": fmpy_wrapper(fmu, args.steps, args.repeats)}
-    base = results["floor (C loop)"]
-    print(f"closed loop, {args.steps} steps of 1 ms, 10 RK4 substeps, best of {args.repeats}")
-    for name, us in results.items():
-        print(f"{name:16s} {us:7.3f} us/step  {us / base:5.2f}x floor")
+    ways = {"floor (C loop)": floor, "PlantSession": session, "fmpy FMU2Slave": fmpy_wrapper}
+    measured = {}
+    for plant in args.plants:
+        loop = PLANTS[plant]()
+        measured[plant] = {name: way(loop, args.steps, args.repeats) for name, way in ways.items()}
+    first = args.plants[0]
+    for plant, results in measured.items():
+        base = results["floor (C loop)"]
+        print(f"{plant}: closed loop, {args.steps} steps of 1 ms, 10 RK4 substeps, best of {args.repeats}")
+        for name, us in results.items():
+            beside = f"  {us / measured[first][name]:5.2f}x {first}'s" if plant != first else ""
+            print(f"{name:16s} {us:7.3f} us/step  {us / base:5.2f}x floor{beside}")
+        print()
     return 0
 
 

@@ -21,7 +21,8 @@ from furuta_cosim.fmu.variables import MAX_FACTOR, MAX_OFFSET, MIN_FACTOR
 # unit -> factor to SI (rad, rad/s, A, V, s): value_SI = (value + offset) * factor
 UNITS = {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi, "rad/s": 1.0,
          "deg/s": math.pi / 180.0, "rpm": 2.0 * math.pi / 60.0, "A": 1.0, "mA": 1e-3, "V": 1.0,
-         "s": 1.0, "ms": 1e-3}
+         "s": 1.0, "ms": 1e-3, "m": 1.0, "cm": 1e-2, "mm": 1e-3, "m/s": 1.0, "mm/s": 1e-3,
+         "N": 1.0, "N.m": 1.0}
 
 
 MAX_CSV_BYTES = 200_000_000

@@ -165,6 +165,12 @@ def check_names(target: Target, experiments, free: tuple[str, ...] = (), source:
     problems = []
     for experiment in experiments:
         where = str(experiment.path)
+        if experiment.loop is not None and target.plant is not None and target.plant.model != "furuta":
+            # the closed loop's readings are the pendulum's encoders and current: the Furuta's
+            problems.append(f"{where}: loop: a closed-loop log is replayed through the Furuta pendulum's "
+                            f"loop (its encoders, current and laws); {target.label} is another plant: "
+                            "state its log open loop (the command as an input column)")
+            continue
         for name in experiment.inputs:
             variable = target.input(name)[0]
             if variables.get(variable) is None or variables[variable].causality != "input":

@@ -106,3 +106,77 @@ def truth(plant: str = "qube-servo-3") -> dict[str, float]:
 
     return {k: float(v) for k, v in load_plant(plant).parameters.items() if isinstance(v, (int, float))
             and math.isfinite(float(v))}
+
+
+def open_loop_log(folder: str | Path, plant: str | Path, inputs: dict, *, period: float,
+                  outputs: dict, truth: dict | None = None, start: dict | None = None,
+                  name: str = "log", seed: int = 0) -> Path:
+    """Record an open-loop log of any plant (a plant file or folder) at known parameters into
+    ``folder`` and return its experiment file: what identify reads, of a known truth.
+
+    Parameters
+    ----------
+    folder : path
+        Where the CSV and the experiment file go (created).
+    plant : str or path
+        The plant (its FMU runs the log).
+    inputs : dict
+        Input name -> the values it takes, one per sample (held over each sample).
+    period : float
+        The sample period (s).
+    outputs : dict
+        Output name -> ``(unit, quantum)``: each is logged rounded to its sensor's quantum.
+    truth : dict, optional
+        The parameters the log is recorded at (the plant file's otherwise).
+    start : dict, optional
+        The start state, by state name (the declaration's otherwise); written into the
+        experiment file as its ``start``.
+    name : str
+        The experiment's name and its files' (``NAME.csv``, ``NAME.yaml``).
+    seed : int
+        Where each quantizer's grid starts (a sensor's zero is anywhere within one count).
+    """
+    from furuta_cosim.fmu.exporter import build_fmu, declaration
+    from furuta_cosim.fmu.plants import load_plant
+    from furuta_cosim.fmu.session import PlantSession
+
+    folder = Path(folder)
+    loaded = load_plant(plant)
+    model = declaration(loaded)
+    states = [s.name for s in model.states]
+    start = {s: float(v) for s, v in (start or {}).items()}
+    values = {**(truth or {}), **{f"{s}_start": v for s, v in start.items()}}
+    names = list(inputs)
+    columns = [np.asarray(inputs[n], dtype=float) for n in names]
+    count = len(columns[0])
+    rng = np.random.default_rng(seed)
+    with PlantSession.open(build_fmu(loaded)) as session:
+        session.reset(values)
+        session.set_io(names, list(outputs))
+        rows = [session.get(list(outputs))]
+        for k in range(count - 1):
+            rows.append(session.step([c[k] for c in columns], period))
+        rows = np.array(rows)
+    for j, (_, quantum) in enumerate(outputs.values()):
+        if quantum:
+            offset = rng.uniform(-0.5, 0.5) * quantum
+            rows[:, j] = np.round((rows[:, j] - offset) / quantum) * quantum + offset
+    t = period * np.arange(count)
+    header = ",".join(["t", *names, *outputs])
+    table = np.column_stack([t, *columns, rows])
+    write_text(folder / f"{name}.csv", header + "\n" + "\n".join(",".join(repr(float(v)) for v in row)
+                                                               for row in table) + "\n")
+    stated = {s: start.get(s, next(v.start for v in model.reals if v.name == f"{s}_start")) for s in states}
+    document = {"name": name, "description": f"open-loop log of {loaded.name}, recorded at known values",
+                "data": f"{name}.csv", "header": 1, "columns": ["t", *names, *outputs], "time": "t",
+                "inputs": {n: {"column": n, "unit": _unit(model, n)} for n in names},
+                "outputs": {n: {"column": n, "unit": unit, **({"quantum": float(q)} if q else {})}
+                            for n, (unit, q) in outputs.items()},
+                "start": stated}
+    path = folder / f"{name}.yaml"
+    write_text(path, yaml.safe_dump(document, sort_keys=False))
+    return path
+
+
+def _unit(model, name: str) -> str:
+    return next(v.unit for v in model.reals if v.name == name)
