@@ -7,7 +7,7 @@
     K: [-0.3105, -5.2621, 70.7488, 8.9224, 0.1772]      # static
     # Ac: [[-100]]  Bc: [[0, 0, 0, 0, 0]]  Cc: [[-0.5]]  Dc: [[...]]   # generalized
     model: paper-printed          # the model it was designed on (analyze's default)
-    prefilter: {output: theta0, F: -0.3105}   # F is computed on the model when left out
+    prefilter: {output: y, F: -0.3105}        # F is computed on the model when left out
     provenance: {method: ..., Q: ..., R: ...}  # free-form: how it was made
 """
 
@@ -286,11 +286,14 @@ def check_fits(cfile: ControllerFile, model: LinearModel) -> ControllerFile:
 
 
 def default_output(model: LinearModel) -> str:
-    """The default tracked output (defaults.TRACKED_OUTPUT) when the model has it, else its
-    first output."""
-    from furuta_cosim.defaults import TRACKED_OUTPUT
+    """The default tracked output: the model's first state when its first output measures that
+    state alone (a sensor on it: the first row of C a unit vector on it), else its first output."""
+    import numpy as np
 
-    return TRACKED_OUTPUT if TRACKED_OUTPUT in model.states + model.outputs else model.outputs[0]
+    row = np.asarray(model.C, dtype=float)[0]
+    unit = np.zeros_like(row)
+    unit[0] = 1.0
+    return model.states[0] if model.states and np.array_equal(row, unit) else model.outputs[0]
 
 
 def controller_document(cfile: ControllerFile, folder: Path | None = None) -> dict:

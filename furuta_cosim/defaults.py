@@ -4,8 +4,6 @@ them while building its parser)."""
 # The paper's control period: its printed K is a discrete LQR at 2 ms
 # (docs/pages/paper-readings.md §2).
 PAPER_PERIOD = 2e-3
-# The pendulum's conventional tracked output, when a plant has it.
-TRACKED_OUTPUT = "theta0"
 
 # What a period (control, sample, communication) and a matrix entry may be: beyond these a
 # build or a run is numerically meaningless (a period of 1e-300 s, a gain of 1e308 that turns

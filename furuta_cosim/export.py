@@ -46,12 +46,18 @@ _NOT_LINEAR = ("{source}: a swing-up is not a linear law, and the FMU this expor
 
 def _signals(linear, tracked: str | None, F: float, delay: bool, noise=()) -> list[tuple[str, str, str]]:
     """(name, unit, description) of the controller FMU's inputs and output: each fed-back
-    signal as the plant model declares it (fmu_src/furuta/model.py: its unit and its zero),
-    the reference, and the command."""
+    signal as the plant model declares it (its unit and its zero: the declaration of the plant
+    the controller's model was linearized from, else the default plant's), the reference,
+    and the command."""
     from furuta_cosim.fmu.exporter import declaration
     from furuta_cosim.fmu.plants import load_plant
 
-    declared = {v.name: v for v in declaration(load_plant("furuta")).reals}
+    source = (getattr(linear, "provenance", None) or {}).get("plant_file")
+    try:
+        model = declaration(load_plant(source) if source else load_plant())
+    except ConfigError:
+        model = declaration(load_plant())
+    declared = {v.name: v for v in model.reals}
     found = []
     for name in linear.states:
         v = declared.get(name)
@@ -59,7 +65,7 @@ def _signals(linear, tracked: str | None, F: float, delay: bool, noise=()) -> li
             found.append((name, "", f"fed back: the plant's {name}, in the model's units"))
             continue
         text = f"fed back: {v.description} ({v.unit or 'no unit'})"
-        if name == "theta1":
+        if name in model.upright:
             text += "; a rig whose encoder reads 0 hanging feeds its reading minus pi"
         found.append((name, v.unit, text))
     if tracked:

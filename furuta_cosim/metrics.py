@@ -304,7 +304,7 @@ def problem(metric: str, known: Mapping[str, tuple[str, ...]] | None = None) -> 
     Without ``known`` only the form and the name are checked (any signal may exist)."""
     signal, dot, name = metric.rpartition(".")
     if not dot or not signal or not name:
-        return f"expected <signal>.<metric> (e.g. theta1.SettlingTime), got {metric!r}"
+        return f"expected <signal>.<metric> (e.g. y.SettlingTime), got {metric!r}"
     if known is None or is_controller_state(signal):
         names = {"u": metrics_of("input"), "error": metrics_of("error")}.get(
             signal, tuple(dict.fromkeys(name for _, name in METRICS)))  # any signal's, before the plant is known

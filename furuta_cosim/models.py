@@ -66,7 +66,7 @@ def derived(parameter_set: str | Path = "paper-calibrated", beside: Path | None 
     result = linearize(build_fmu(plant), parameters=parameters, inputs={inputs[0]: 0.0},
                        outputs=list(model.measured) or None)
     name = "derived" if plant.name == "paper-calibrated" else f"derived:{plant.name}"
-    provenance = {"linearized": plant.name}
+    provenance = {"linearized": plant.name, "plant_file": str(plant.path)}
     if note:
         provenance["note"] = note
     return LinearModel(name, result.A, result.B, result.C, result.D, tuple(result.states),

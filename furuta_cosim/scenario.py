@@ -39,7 +39,7 @@ class Signal:
 
 @dataclass(frozen=True)
 class Reference:
-    output: str | None  # None: the plant's default (theta0, or the linear plant's first output)
+    output: str | None  # None: the plant's default (its first measured output, else its first state)
     signals: tuple[Signal, ...]
 
     def __call__(self, t: np.ndarray) -> np.ndarray:
@@ -327,7 +327,7 @@ def _plant(check: Checker, value, folder: Path):
             fmu = Path(text) if Path(text).is_absolute() else folder / text
     overrides = check.numbers(section.get("overrides", {}), "plant.overrides")
     given = section.get("initial", {})
-    if isinstance(given, dict):  # a pendulum hanging down starts at pi: `theta1: pi` says so
+    if isinstance(given, dict):  # a pendulum hanging down starts at pi: `<angle>: pi` says so
         given = {k: ({"pi": math.pi, "-pi": -math.pi}.get(v.strip(), v) if isinstance(v, str) else v)
                  for k, v in given.items()}
     initial = check.numbers(given, "plant.initial")

@@ -73,7 +73,7 @@ def unchecked_requirements(scenario: Scenario, compiled: Sequence) -> list[str]:
 
 def plant_names(prepared) -> str:
     """The plant's own variables behind the view's names, with their conversions
-    (``theta1 = pend_angle x 0.0174533``); empty when the view uses the FMU's names as they are."""
+    (``angle = pend_angle x 0.0174533``); empty when the view uses the FMU's names as they are."""
     pairs = list(zip(prepared.signals, prepared.outputs)) + [(prepared.control_input, prepared.control_input)] \
         + list(zip(prepared.disturbances, prepared.disturbance_inputs))
     parts = []
@@ -196,12 +196,16 @@ def diverged(trace, prepared) -> str | None:
     from furuta_cosim.swingup import wrap
 
     signals = trace.signals
-    if "theta1" in signals and len(signals["theta1"]):
-        pendulum = np.array([abs(wrap(float(v))) for v in signals["theta1"] if math.isfinite(v)])
+    for name in getattr(prepared, "upright", ()):   # the declaration's pendulum angles
+        if name not in signals or not len(signals[name]):
+            continue
+        pendulum = np.array([abs(wrap(float(v))) for v in signals[name] if math.isfinite(v)])
         if len(pendulum) and pendulum[0] < math.pi / 2 and pendulum.max() > math.pi / 2:
             return f"the pendulum fell: {pendulum.max():.3g} rad from upright"
+    from furuta_cosim.fmu.plants import LIMITED_SIGNALS
+
     limits = dict(prepared.plant.limits) if prepared.plant is not None else {}
-    for signal, key, unit in (("theta0", "theta0", "rad"), ("i", "current", "A")):
+    for key, (signal, unit) in LIMITED_SIGNALS.items():
         bound = limits.get(key)
         if bound and signal in signals and len(signals[signal]):
             peak = float(np.nanmax(np.abs(signals[signal])))

@@ -119,16 +119,22 @@ def test_a_spec_names_a_model_of_its_own_tree(tmp_path):
 # -- no code from a parameter file ----------------------------------------------------------------
 
 
-def test_a_plant_file_never_runs_code_named_in_it(tmp_path, capsys):
+def test_a_plant_file_runs_no_code_but_a_plant_folder_s_declaration(tmp_path, capsys):
+    """A plant file names a model of fmu_src by its plain name, or a plant folder beside it
+    (model.py and model.c: naming one runs its declaration, as running a script would): a path
+    out of fmu_src is not followed there, and a folder that is not a plant folder runs nothing."""
     evil = tmp_path / "evil"
     evil.mkdir()
     marker = tmp_path / "ran"
     (evil / "model.py").write_text(f"open({str(marker)!r}, 'w').write('x')\n")
     plant = tmp_path / "plant.yaml"
-    relative = os.path.relpath(evil, paths.fmu_sources())
+    relative = os.path.relpath(evil, paths.fmu_sources())   # meant from fmu_src: not followed there
     plant.write_text(f"model: {relative}\nparameters: {{}}\n")
     line = one_line(capsys, "build-fmu", str(plant))
-    assert f"{plant}: model: expected the name of a plant model of fmu_src" in line
+    assert line.startswith(f"error: {plant}: model: ") and "no such folder" in line
+    plant.write_text("model: evil\nparameters: {}\n")          # beside it, without its equations
+    line = one_line(capsys, "build-fmu", str(plant))
+    assert "model.c missing" in line
     assert not marker.exists()
 
 

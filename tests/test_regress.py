@@ -17,14 +17,18 @@ from furuta_cosim.regression import regress
 
 from helpers import run_cli
 
-SHIPPED = sorted(p.stem for p in paths.scenarios().glob("*.yaml"))
+# the top-level scenarios and those of each example tree (a folder with its own baselines)
+TOP = sorted(p.stem for p in paths.scenarios().glob("*.yaml"))     # the Furuta's and the toy's
+SHIPPED = TOP + sorted(p.stem for p in (paths.scenarios() / "cart-pole").glob("*.yaml"))
 
 
 def runs_of(names) -> int:
     """How many runs the scenarios named make: one per controller of each."""
     from furuta_cosim.scenario import load_scenario
 
-    return sum(len(load_scenario(name).controllers) for name in names)
+    trees = [paths.scenarios(), paths.scenarios() / "cart-pole"]
+    return sum(len(load_scenario(next(t / f"{n}.yaml" for t in trees if (t / f"{n}.yaml").is_file())).controllers)
+               for n in names)
 MAPPING = """\
 control_input: voltage
 states: {theta0: arm_angle, dtheta0: arm_rate, theta1: pend_angle, dtheta1: pend_rate, i: current}
@@ -108,7 +112,7 @@ def test_the_fmu_rebuilt_by_fmpy_compile_passes(tmp_path, furuta_fmu, capsys):
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
     assert rebuilt.read_bytes() != furuta_fmu.read_bytes()  # a binary of its own
-    names = [n for n in SHIPPED if not n.startswith("toy")]
+    names = [n for n in TOP if not n.startswith("toy")]
     code, out, err = run_cli(capsys, "regress", *names, "--fmu", str(rebuilt), "--workers", "1")
     assert code == 0, out + err
     assert f"{runs_of(names)} run(s)" in out and f": {runs_of(names)} pass" in out
@@ -317,7 +321,7 @@ def test_a_new_metric_fails_no_shipped_baseline_and_update_adds_only_its_lines(t
             return s.t * s.x ** 2
 
     report = regress([str(p) for p in sorted(copy.glob("*.yaml"))])
-    assert not report.failed and len(report.cases) == runs_of(SHIPPED)
+    assert not report.failed and len(report.cases) == runs_of(TOP)
     noted = [c for c in report.cases if any("metric error.ITSE" in n for n in c.notes)]
     # every run to its end holds the new metric (a run that stopped early stores none)
     finished = [p for p, text in before.items() if "failure: null" in text]

@@ -1,7 +1,8 @@
 """Microseconds per closed-loop control step of a plant FMU, three ways, in one run: the
-Furuta pendulum's, and the cart-pole example's (a plant folder) beside it.
+Furuta pendulum's; the cart-pole example's (a plant folder) beside it; and the Furuta written
+in Python and exported by pythonfmu (what a user who writes only Python equations gets).
 
-    python tools/bench_fmu.py [--steps 5000] [--repeats 7] [--plants furuta cart-pole]
+    python tools/bench_fmu.py [--steps 5000] [--repeats 7] [--plants furuta cart-pole furuta-pythonfmu]
 
 - floor:    a C program that dlopens the same FMU binary and runs the same loop;
 - session:  furuta_cosim's PlantSession (cffi, prepared buffers);
@@ -16,6 +17,9 @@ gain. Best of the repeats.
 from __future__ import annotations
 
 import argparse
+import atexit
+import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -43,6 +47,8 @@ class Loop:
     states: list
     K: list
     start: str
+    input: str = "V"
+    native: bool = True        # a C binary a C program can dlopen (not a pythonfmu one)
 
 
 def furuta() -> Loop:
@@ -60,7 +66,20 @@ def cart_pole() -> Loop:
     return Loop(build_fmu(plant), ["x_c", "dx_c", "alpha", "dalpha"], K, "alpha_start")
 
 
-PLANTS = {"furuta": furuta, "cart-pole": cart_pole}
+def pythonfmu_furuta() -> Loop:
+    """The Furuta pendulum written in Python and exported by pythonfmu (the tests' foreign
+    FMU, tests/foreign/pendulum_fmu.py: RK4 with 20 substeps per doStep, in Python)."""
+    foreign = ROOT / "tests" / "foreign"
+    work = Path(tempfile.mkdtemp(prefix="bench-fmu-"))
+    atexit.register(shutil.rmtree, work, True)
+    subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(foreign / "pendulum_fmu.py"),
+                    str(foreign / "pendulum_physics.py"), "-d", str(work)], check=True, capture_output=True,
+                   env={**os.environ, "PYTHONPATH": str(foreign)})
+    return Loop(next(work.glob("*.fmu")), ["arm_angle", "arm_rate", "pend_angle", "pend_rate", "current"],
+                [-0.31, -5.26, 70.74, 8.92, 0.17], "pend_angle_0", input="voltage", native=False)
+
+
+PLANTS = {"furuta": furuta, "cart-pole": cart_pole, "furuta-pythonfmu": pythonfmu_furuta}
 
 FLOOR_C = r"""
 #include <dlfcn.h>
@@ -127,7 +146,7 @@ def floor(loop: Loop, steps: int, repeats: int) -> float:
 def session(loop: Loop, steps: int, repeats: int) -> float:
     best = float("inf")
     with PlantSession.open(loop.fmu) as plant:
-        plant.set_io(["V"], loop.states)
+        plant.set_io([loop.input], loop.states)
         gains = list(zip(loop.K, range(len(loop.states))))
         for _ in range(repeats):
             plant.reset({loop.start: 0.1})
@@ -152,7 +171,7 @@ def fmpy_wrapper(loop: Loop, steps: int, repeats: int) -> float:
                           modelIdentifier=binary.identifier, instanceName="fmpy")
         slave.instantiate()
         out = [binary.variable(s).valueReference for s in STATES]
-        vin = [binary.variable("V").valueReference]
+        vin = [binary.variable(loop.input).valueReference]
         start_vr = [binary.variable(loop.start).valueReference]
         for r in range(repeats):
             if r:
@@ -176,20 +195,23 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--repeats", type=int, default=7)
-    parser.add_argument("--plants", nargs="+", choices=tuple(PLANTS), default=list(PLANTS))
+    parser.add_argument("--plants", nargs="+", choices=tuple(PLANTS), default=list(PLANTS),
+                        help="furuta-pythonfmu needs pythonfmu (the test extra)")
     args = parser.parse_args()
     ways = {"floor (C loop)": floor, "PlantSession": session, "fmpy FMU2Slave": fmpy_wrapper}
     measured = {}
     for plant in args.plants:
         loop = PLANTS[plant]()
-        measured[plant] = {name: way(loop, args.steps, args.repeats) for name, way in ways.items()}
+        measured[plant] = {name: way(loop, args.steps, args.repeats) for name, way in ways.items()
+                           if loop.native or way is not floor}
     first = args.plants[0]
     for plant, results in measured.items():
-        base = results["floor (C loop)"]
-        print(f"{plant}: closed loop, {args.steps} steps of 1 ms, 10 RK4 substeps, best of {args.repeats}")
+        base = measured[first]["floor (C loop)"]
+        substeps = 20 if plant == "furuta-pythonfmu" else 10
+        print(f"{plant}: closed loop, {args.steps} steps of 1 ms, {substeps} RK4 substeps, best of {args.repeats}")
         for name, us in results.items():
-            beside = f"  {us / measured[first][name]:5.2f}x {first}'s" if plant != first else ""
-            print(f"{name:16s} {us:7.3f} us/step  {us / base:5.2f}x floor{beside}")
+            beside = f"  {us / measured[first][name]:6.2f}x {first}'s" if plant != first else ""
+            print(f"{name:16s} {us:8.3f} us/step  {us / base:6.2f}x {first}'s floor{beside}")
         print()
     return 0
 

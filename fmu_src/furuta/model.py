@@ -89,4 +89,5 @@ def declare(parameters):
     model.substeps = "n_substeps"
     model.measured = list(MEASURED)
     model.nonsmooth = list(NONSMOOTH)
+    model.upright = ["theta1"]
     return model

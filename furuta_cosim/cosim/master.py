@@ -5,8 +5,8 @@ A prepared scenario holds everything a run needs except the controller, so that 
 preparation serves any number of controllers (:func:`furuta_cosim.cosim.evaluation.evaluate`),
 and it pickles, so that worker processes receive it once.
 
-The controller's view: the fed-back states in the controller's order (``theta0, dtheta0,
-theta1, dtheta1, i`` for the pendulum), the control input, and named disturbance inputs.
+The controller's view: the fed-back states in the controller's order (the order the plant's
+declaration gives them), the control input, and named disturbance inputs.
 For an FMU built by this project the view follows its conventions (states are the outputs
 with a ``<name>_start`` parameter, which also sets the initial state); any other FMI 2.0
 co-simulation FMU is mapped onto the view by the scenario's ``plant.mapping``. Every name a
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from furuta_cosim.defaults import PAPER_PERIOD, TRACKED_OUTPUT
+from furuta_cosim.defaults import PAPER_PERIOD
 from furuta_cosim.errors import ConfigError, DesignError, FmuError, PlantUnfit
 from furuta_cosim.fmu.exporter import build_fmu
 from furuta_cosim.fmu.plants import PlantSet, load_plant, voltage_limit
@@ -81,6 +81,8 @@ class Prepared:
     # smallest of the scenario's actuator.limit, the plant file's limits.voltage (the
     # amplifier's) and the model's V_max parameter: ``limit_of``
     limit: float | None = None
+    # the view's states whose 0 is a pendulum upright (the declaration's ``upright``)
+    upright: tuple = ()
     key: str = field(default_factory=lambda: uuid.uuid4().hex)
     _estimator: object = field(default=None, repr=False, compare=False)
 
@@ -180,7 +182,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
     view = _view(scenario, variables, identifier, fail)
     outputs, signals, states, state_outputs, control_input, inputs, disturbance_names = view
     problems += _dimensions(description, variables, plant, fmu_path, scenario.mapping,
-                            {**dict(zip(signals, outputs)), **inputs, "V": control_input})
+                            {**dict(zip(signals, outputs)), **inputs}, control_input)
     if problems:  # every other name is a view name: nothing more can be checked without it
         raise ConfigError(problems)
     conversions = _conversions(description, scenario.mapping,
@@ -210,8 +212,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
         scale, offset = declared_conversion(description, variables[target]) or conversions.get(output, (1.0, 0.0))
         start[target] = (value - offset) / scale
 
-    tracked = scenario.reference.output or (TRACKED_OUTPUT if TRACKED_OUTPUT in signals
-                                            else (states or signals)[0])
+    tracked = scenario.reference.output or _default_tracked(plant, fmu_path, signals) or (states or signals)[0]
     if tracked not in signals:
         fail("reference.output", f"not an output (outputs: {', '.join(signals)})")
     process = list(scenario.noise.process) if scenario.noise else []
@@ -283,7 +284,7 @@ def prepare(scenario: Scenario, *, fmu: str | Path | None = None,
                         tracked, period, step, steps, unit, t, rbar, disturbance, measurement,
                         noisy, measured=measured, metrics=known,
                         units=declared,
-                        conversions=conversions, limit=limit)
+                        conversions=conversions, limit=limit, upright=_upright(plant, signals))
     if scenario.estimator:
         prepared.kalman = _kalman(prepared, state_outputs)
     return prepared
@@ -358,6 +359,28 @@ def _plant(scenario: Scenario, fmu: str | Path | None) -> tuple[PlantSet | None,
     if not path.exists() and not path.is_symlink():
         raise ConfigError([f"{where}{given}: no such FMU file"])
     return plant, regular(path, where)
+
+
+def _default_tracked(plant: PlantSet | None, fmu_path, signals: list[str]) -> str | None:
+    """The output a reference tracks when the scenario names none: the first output the
+    plant's declaration says a sensor measures (its ``measured``), for the plant's own FMU."""
+    if plant is None or plant.linear is not None or Path(fmu_path) != Path(build_fmu(plant)):
+        return None
+    from furuta_cosim.fmu.exporter import declaration
+
+    measured = [name for name in declaration(plant).measured if name in signals]
+    return measured[0] if measured else None
+
+
+def _upright(plant: PlantSet | None, signals: list[str]) -> tuple:
+    """The view's pendulum angles (0 upright): those the declaration of the scenario's plant
+    (the default plant's when it names none) says are, among the signals."""
+    from furuta_cosim.fmu.exporter import declaration
+
+    base = plant if plant is not None else load_plant()
+    if base.linear is not None:
+        return ()
+    return tuple(name for name in declaration(base).upright if name in signals)
 
 
 def _view(scenario: Scenario, variables: dict, identifier: str, fail):
@@ -438,14 +461,19 @@ def _units(description, outputs, signals, control_input, conversions) -> dict[st
     return {name: unit(target) for name, target in named.items() if unit(target)}
 
 
-def _dimensions(description, variables, plant, fmu_path, mapping, named) -> list[str]:
+def _dimensions(description, variables, plant, fmu_path, mapping, named, control_input) -> list[str]:
     """A foreign FMU's declared units against the quantities of the view (the units the
     scenario's own plant declares, the default plant's when it names none): an angle must
     come in an angle unit. A variable the mapping scales itself is the mapping's business."""
     plant = plant if plant is not None else load_plant()
     if plant.linear is not None or Path(fmu_path) == Path(build_fmu(plant)):
         return []
-    ours = {v.name: v.unit for v in model_description(build_fmu(plant)).modelVariables}
+    own = model_description(build_fmu(plant)).modelVariables
+    ours = {v.name: v.unit for v in own}
+    # the control input in the view is the plant's own first input (the Furuta's V)
+    own_input = next((v.name for v in own if v.causality == "input"), None)
+    if own_input is not None:
+        named = {**named, own_input: control_input}
     given = mapping.conversions if mapping else {}
     problems = []
     for name, target in named.items():

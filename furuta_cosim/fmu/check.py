@@ -76,7 +76,7 @@ def run_ecos(fmu: str | Path, start_values: Mapping[str, float], outputs: Sequen
 def run_ecos_connected(fmus: Mapping[str, str | Path], connections: Sequence[tuple[str, str]],
                        start_values: Mapping[str, float], outputs: Sequence[str],
                        steps: int, step: float) -> np.ndarray:
-    """Several FMUs connected output to input (``("plant::theta0", "controller::theta0")``)
+    """Several FMUs connected output to input (``("plant::y", "controller::y")``)
     in Ecos: the ``outputs`` (``instance::variable``) at t = 0 and before each later step,
     ``steps`` rows. Ecos steps every FMU, then copies every connected output to its input."""
     from ecospy import EcosSimulation, EcosSimulationStructure

@@ -116,6 +116,8 @@ class Model:
     constants: dict[str, int] = field(default_factory=dict)
     measured: list[str] = field(default_factory=list)  # outputs a design model measures (all: empty)
     nonsmooth: list[str] = field(default_factory=list)  # parameters a linear model leaves out (set to 0)
+    # states whose 0 is a pendulum upright: a run that lets one fall beyond pi/2 diverged
+    upright: list[str] = field(default_factory=list)
     # name -> value reference, kept as variables are registered (a linear plant or a controller
     # declares tens of thousands: a scan per registration made declaring quadratic)
     _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False)

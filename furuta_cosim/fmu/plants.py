@@ -186,8 +186,8 @@ def load_plant(name: str | Path = "furuta", also: tuple[str, ...] = (),
         Listing every problem of the file (and of the files it extends).
     """
     folder = is_folder(name, beside) if str(name) not in model_names() else None
-    if folder is not None:
-        return folder_plant(folder)
+    if folder is not None and any((folder / f).exists() for f in ("model.py", "model.c")):
+        return folder_plant(folder)   # a plant folder (any other folder: "a folder, not a file")
     return _load(plant_path(name, also, beside), seen=())
 
 
@@ -297,6 +297,9 @@ RIG_LIMITS = {
     "stall_voltage": (0.0, 1e3, "a command above this for stall_seconds while the arm stands still trips (V)"),
     "stall_seconds": (0.0, 1e3, "see stall_voltage (s)"),
 }
+# the limits that bound a signal of a run: limits key -> (the signal, its unit); a simulated run
+# beyond one has left what the rig's supervisor allows (the QUBE's arm and current)
+LIMITED_SIGNALS = {"theta0": ("theta0", "rad"), "current": ("i", "A")}
 # how a rig's sensors read it: encoder counts per revolution of each, the sense of each angle
 # against the model's, and the current sensor's noise (the virtual board reads the plant so)
 SENSORS = {

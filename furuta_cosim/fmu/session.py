@@ -4,9 +4,9 @@ fmpy reads the model description and extracts the FMU once; the fmi2 functions a
 called directly with buffers and value references prepared once, because the convenience
 wrappers cost several times the model's own step (see ``tools/bench_fmu.py``).
 
-    with PlantSession.open(build_fmu("furuta")) as plant:
-        plant.reset(parameters={"theta1_start": 0.1})
-        plant.set_io(inputs=["V"], outputs=["theta0", "dtheta0", "theta1", "dtheta1", "i"])
+    with PlantSession.open(build_fmu(plant_file)) as plant:
+        plant.reset(parameters={"x_start": 0.1})        # a state's start parameter
+        plant.set_io(inputs=["u"], outputs=["x", "v"])   # the declaration's names
         for k in range(1000):
             y = plant.step([0.0], 1e-3)
 """

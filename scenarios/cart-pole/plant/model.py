@@ -44,4 +44,5 @@ def declare(parameters):
                                     maximum=MAX_SUBSTEPS, description="RK4 substeps per communication step"))
     model.substeps = "n_substeps"
     model.measured = ["x_c", "alpha"]     # the two encoders; the first is the tracked output
+    model.upright = ["alpha"]             # a run that lets it fall beyond pi/2 diverged
     return model
