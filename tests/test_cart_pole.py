@@ -164,3 +164,12 @@ def test_a_closed_loop_log_of_another_plant_is_refused_in_one_line(tmp_path, cap
     experiment.write_text(text)
     line = one_line(capsys, "replay", str(experiment), "--plant", str(EXAMPLE / "plants" / "ip02.yaml"))
     assert "loop: a closed-loop log is replayed through the Furuta pendulum's loop" in line
+
+
+def test_the_rig_says_in_one_line_that_it_runs_a_furuta_pendulum(capsys, tmp_path):
+    from helpers import one_line
+
+    line = one_line(capsys, "rig", "run", str(EXAMPLE / "controllers" / "lqr-ip02.yaml"), "--board", "virtual",
+                    "--plant", str(EXAMPLE / "plants" / "ip02.yaml"), "--duration", "1", "-o", str(tmp_path / "run"))
+    assert "ip02: a plant of the folder plant/; the boards here run a Furuta pendulum" in line
+    assert not (tmp_path / "run").exists()

@@ -11,6 +11,8 @@ the registry.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import time
 from dataclasses import dataclass
 
@@ -186,7 +188,9 @@ def board_for(text: str, plant=None, **options) -> Board:
     from furuta_cosim.rig import quanser, virtual  # noqa: F401 - they register their boards
 
     if plant is not None and plant.model != "furuta":
-        raise ConfigError([f"plant {plant.name}: a {plant.model} plant; the boards here run a Furuta pendulum "
+        kind = (f"a plant of the folder {Path(plant.model).name}/" if plant.folder is not None
+                else f"a {plant.model} plant")
+        raise ConfigError([f"plant {plant.name}: {kind}; the boards here run a Furuta pendulum "
                            "(the QUBE's arm and pendulum encoders, its motor's current and amplifier): name a "
                            "plant of model furuta"])
     name, _, argument = str(text).partition(":")
