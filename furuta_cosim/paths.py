@@ -25,6 +25,8 @@ def fmu_sources() -> Path:
 
 
 def scenarios() -> Path:
+    """The shipped YAML files (plants, controllers, scenarios, tuning specs, the cart-pole
+    example in ``cart-pole/``)."""
     return root() / "scenarios"
 
 

@@ -55,7 +55,11 @@ class Real:
     causality : {"parameter", "input", "output", "local"}
     start : float, optional
         Required for parameters and inputs.
-    unit, description : str
+    unit : str
+        Its unit (``"1"`` for a pure number; a plant folder's states, inputs and parameters
+        must give one).
+    description : str
+        One line saying what it is.
     positive : bool
         The FMU rejects values <= 0 (masses, lengths, inertias).
     minimum : float, optional
@@ -82,7 +86,22 @@ MAX_SUBSTEPS = 1000
 
 @dataclass(frozen=True)
 class Integer:
-    """An Integer parameter (for example the RK4 substep count)."""
+    """An Integer parameter (for example the RK4 substep count).
+
+    Parameters
+    ----------
+    name : str
+        FMI name.
+    start : int
+        Its value unless set.
+    minimum : int
+        Its smallest value, checked by the FMU.
+    maximum : int
+        Its largest value, checked by the FMU.
+    description : str
+    causality : str
+        Always ``"parameter"``.
+    """
 
     name: str
     start: int
@@ -103,7 +122,41 @@ class State:
 
 @dataclass
 class Model:
-    """A plant declaration: identifier, time domain and ordered variables."""
+    """A plant declaration: identifier, time domain and ordered variables.
+
+    A plant's ``declare(parameters)`` builds one and registers its variables in order
+    (:meth:`register_variable`, :meth:`register_state`, :meth:`parameter`); the exporter
+    turns it into the FMU's model description and the C header of its equations.
+
+    Parameters
+    ----------
+    identifier : str
+        The FMU's model identifier: a C name (it names the binary and the C functions).
+    description : str
+        One line saying what the plant is.
+    discrete : bool
+        A plant that advances once per sample period (``sample_period``) instead of a
+        continuous one integrated by RK4 (``substeps``).
+    reals : list of Real
+        The registered Real variables, in order (filled by the register methods).
+    integers : list of Integer
+        The registered Integer parameters, in order.
+    states : list of State
+        The registered states, in order.
+    substeps : str, optional
+        The Integer parameter that counts RK4 substeps per communication step (continuous).
+    sample_period : str, optional
+        The Real parameter that is the sample period (discrete).
+    constants : dict
+        Extra ``#define`` lines of the C header (name -> integer).
+    measured : list of str
+        The outputs a sensor measures (a design model's outputs); the first is the output a
+        reference tracks when a scenario names none. Empty: every state.
+    nonsmooth : list of str
+        Parameters a linear model leaves out (set to 0 for linearization: Coulomb friction).
+    upright : list of str
+        States whose 0 is a pendulum upright: a run that lets one fall beyond pi/2 diverged.
+    """
 
     identifier: str
     description: str
@@ -120,16 +173,38 @@ class Model:
     upright: list[str] = field(default_factory=list)
     # name -> value reference, kept as variables are registered (a linear plant or a controller
     # declares tens of thousands: a scan per registration made declaring quadratic)
-    _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False)
+    _references: dict[str, tuple[str, int]] = field(default_factory=dict, repr=False, compare=False,
+                                                     init=False)
     # name -> (file, line) of the call that registered it (see _caller)
-    where: dict[str, tuple[str, int] | None] = field(default_factory=dict, repr=False, compare=False)
+    where: dict[str, tuple[str, int] | None] = field(default_factory=dict, repr=False, compare=False,
+                                                     init=False)
 
     def parameter(self, values, name: str, default: float, unit: str, description: str, *,
                   positive: bool = False, minimum: float | None = None,
                   maximum: float | None = None) -> None:
         """Register the Real parameter ``name``: its start is ``values[name]`` (the plant
-        file's), else ``default``; ``positive``, ``minimum`` and ``maximum`` give its physical
-        range, which every value of it must respect (a plant file's, an importer's)."""
+        file's), else ``default``.
+
+        Parameters
+        ----------
+        values : mapping
+            The plant file's parameters (``declare``'s argument).
+        name : str
+            The parameter's FMI name (and C name: ``R(name)`` in model.c).
+        default : float
+            Its value when the plant file gives none.
+        unit : str
+            Its unit (``"1"`` for a pure number).
+        description : str
+            One line saying what it is.
+        positive : bool
+            It must be > 0 (a mass, a length).
+        minimum : float, optional
+            The smallest physical value (a damping >= 0), which every value of it must
+            respect: a plant file's, an importer's (the model description's min).
+        maximum : float, optional
+            The largest physical value (an efficiency <= 1): the model description's max.
+        """
         start = values.get(name, default) if values is not None else default
         try:
             start = float(start)
@@ -140,7 +215,14 @@ class Model:
                                     positive=positive, minimum=minimum, maximum=maximum))
 
     def register_variable(self, variable: Real | Integer) -> None:
-        """Add a variable; its value reference is its position of registration."""
+        """Add a variable; its value reference is its position of registration.
+
+        Parameters
+        ----------
+        variable : Real or Integer
+            An input, output, parameter or local; the first input is the control input,
+            the others disturbance inputs.
+        """
         try:
             self._register(variable)
         except DeclarationError as error:
@@ -188,7 +270,20 @@ class Model:
         self.reals.append(variable)
 
     def register_state(self, name: str, start: float, unit: str, description: str) -> None:
-        """Add a state: an output, the parameter ``<name>_start`` and, if continuous, ``der(<name>)``."""
+        """Add a state: an output, the parameter ``<name>_start`` and, if continuous, ``der(<name>)``.
+
+        Parameters
+        ----------
+        name : str
+            The state's name; the states' order of registration is the order of ``x`` and
+            ``dx`` in model.c.
+        start : float
+            Its initial value (``<name>_start``: what a scenario's ``plant.initial`` sets).
+        unit : str
+            Its unit; a plant folder must give one (``"1"`` for a pure number).
+        description : str
+            One line saying what it is.
+        """
         self.register_variable(Real(name, "output", unit=unit, description=description))
         start_name = start_parameter(name)
         self.register_variable(Real(start_name, "parameter", start=start, unit=unit,
@@ -202,10 +297,17 @@ class Model:
         self.states.append(State(name, start_name, derivative))
 
     def names(self) -> list[str]:
+        """Every variable's name, in value reference order."""
         return [v.name for v in self.reals] + [v.name for v in self.integers]
 
     def value_reference(self, name: str) -> int:
-        """Reals first, then integers: one value reference space for all types."""
+        """Reals first, then integers: one value reference space for all types.
+
+        Parameters
+        ----------
+        name : str
+            A registered variable.
+        """
         kind, k = self._references[name]
         return k if kind == "real" else len(self.reals) + k
 

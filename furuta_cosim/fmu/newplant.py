@@ -20,7 +20,16 @@ def identifier(name: str) -> str:
 
 
 def new_plant(folder: str | Path) -> Path:
-    """Write a plant folder at ``folder`` (which must not exist) and return it."""
+    """Write a plant folder to start from at ``folder`` and return it: ``model.py`` (a mass on
+    a spring, declared), ``model.c`` (its equations), ``plant.yaml`` (a parameter set) and
+    ``step.yaml`` (a scenario), all or none.
+
+    Parameters
+    ----------
+    folder : path
+        The new folder; it must not exist, and its name (a letter, then letters, digits, ``-``
+        or ``_``) names the FMU (``my-cart`` -> ``MyCart``).
+    """
     folder = Path(folder)
     if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]{0,63}", folder.name):
         raise ConfigError([f"{folder}: a plant folder's name starts with a letter, then letters, "

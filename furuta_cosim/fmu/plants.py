@@ -76,7 +76,23 @@ def folder_problem(folder: Path) -> str | None:
 
 
 def folder_plant(folder: str | Path) -> PlantSet:
-    """The plant of a user's plant folder at its declared defaults (``build-fmu FOLDER``)."""
+    """The plant of a user's plant folder at its declared defaults (``build-fmu FOLDER``).
+
+    Parameters
+    ----------
+    folder : path
+        A plant folder: ``model.py`` (the declaration) and ``model.c`` (the equations).
+
+    Returns
+    -------
+    PlantSet
+        Named after the folder, with no parameters of its own (the declaration's defaults).
+
+    Raises
+    ------
+    ConfigError
+        When the folder is missing or lacks one of its two files.
+    """
     folder = Path(folder)
     problem = folder_problem(folder)
     if problem:
