@@ -130,8 +130,8 @@ def modules_table(package: Path = ROOT / "furuta_cosim") -> str:
     rows = ["| module | what it holds |", "| --- | --- |"]
     for path in sorted(package.rglob("*.py"), key=lambda p: (len(p.relative_to(package).parts), p)):
         relative = path.relative_to(package)
-        if path.name == "__init__.py" or relative.parts[0] == "_c" or "_c" in relative.parts:
-            continue
+        if path.name == "__init__.py" or "_c" in relative.parts or "template" in relative.parts:
+            continue   # C sources, and new-plant's template (a user's file, not a module)
         text = ast.get_docstring(ast.parse(path.read_text())) or ""
         paragraph = " ".join(text.split("\n\n")[0].split())
         first = re.split(r"(?<=[a-z0-9)`])\. (?=[A-Z`(])", paragraph, maxsplit=1)[0].rstrip(".:")
