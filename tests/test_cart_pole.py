@@ -115,8 +115,10 @@ def test_the_controller_exports_as_an_fmu_that_passes_every_check(capsys, tmp_pa
     assert all(f.ok for f in findings), [f for f in findings if not f.ok]
     from fmpy import read_model_description
 
-    names = {v.name for v in read_model_description(fmu).modelVariables}
-    assert {"x_c", "dx_c", "alpha", "dalpha", "V"} <= names
+    units = {v.name: v.unit for v in read_model_description(fmu).modelVariables}
+    assert {"x_c", "dx_c", "alpha", "dalpha", "V"} <= set(units)
+    # each signal as the cart-pole's declaration says it, the reference in the tracked output's unit
+    assert (units["x_c"], units["dalpha"], units["r"], units["V"]) == ("m", "rad/s", "m", "V")
 
 
 def test_analyze_gives_the_loop_of_the_plant_s_own_states(capsys):
@@ -173,3 +175,28 @@ def test_the_rig_says_in_one_line_that_it_runs_a_furuta_pendulum(capsys, tmp_pat
                     "--plant", str(EXAMPLE / "plants" / "ip02.yaml"), "--duration", "1", "-o", str(tmp_path / "run"))
     assert "ip02: a plant of the folder plant/; the boards here run a Furuta pendulum" in line
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("block", [0, 1])
+def test_the_own_plant_page_s_commands_run_as_written(block, tmp_path):
+    """Each command block of the Your own plant page, run by a shell in a fresh folder that
+    sees the project's scenarios/ as a checkout does."""
+    import os
+    import re
+    import subprocess
+    import sys
+
+    from helpers import page
+
+    text = re.findall(r"```sh\n(.*?)```", page("own-plant.md"), re.S)[block]
+    (tmp_path / "scenarios").symlink_to(ROOT / "scenarios")
+    env = {**os.environ, "PATH": f"{os.path.dirname(sys.executable)}{os.pathsep}{os.environ['PATH']}"}
+    done = subprocess.run(["bash", "-e", "-c", text], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=900)
+    assert done.returncode == 0, (done.stdout[-3000:], done.stderr[-3000:])
+    if block == 0:
+        assert (tmp_path / "my-plant" / "lqr.yaml").is_file() and "x.SettlingTime" in done.stdout
+    else:
+        assert (tmp_path / "effort-ip02.fmu").is_file() and (tmp_path / "cart-step.ssp").is_file()
+        assert "4 run(s)" in done.stdout and ": 4 pass" in done.stdout

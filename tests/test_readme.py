@@ -64,8 +64,8 @@ def test_main_job_runs_from_a_clean_clone_in_a_new_venv(tmp_path):
 
 PYTHON = python_blocks()
 # an example that tunes (a simulated run, or a simulated prior then rig trials) or fits (a whole
-# identify pipeline) takes seconds
-RUNS = [pytest.param(k, marks=pytest.mark.slow) if re.search(r"\btune(_on_rig)?\(|\.run\(", block) else k
+# identify pipeline, or identify itself) takes seconds
+RUNS = [pytest.param(k, marks=pytest.mark.slow) if re.search(r"\btune(_on_rig)?\(|\.run\(|\bidentify\(", block) else k
         for k, (_, block) in enumerate(PYTHON)]
 
 
