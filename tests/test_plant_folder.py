@@ -205,3 +205,4 @@ def test_new_plant_writes_a_folder_that_builds_designs_and_simulates(tmp_path, c
     assert main(["new-plant", "9lives"]) == 2
     assert "starts with a letter" in capsys.readouterr().err
     assert not list(tmp_path.glob(".*partial*"))
+    assert not (tmp_path / "my-spring" / "__pycache__").exists()   # running the declaration wrote nothing there

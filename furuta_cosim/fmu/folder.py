@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import re
+import sys
 import traceback
 from pathlib import Path
 
@@ -63,12 +64,15 @@ def _module(model_py: Path):
     name = "_furuta_cosim_folder_" + hashlib.sha256(str(model_py).encode()).hexdigest()[:16]
     spec = importlib.util.spec_from_file_location(name, model_py)
     module = importlib.util.module_from_spec(spec)
+    writes, sys.dont_write_bytecode = sys.dont_write_bytecode, True   # no __pycache__ in the user's folder
     try:
         spec.loader.exec_module(module)
     except SyntaxError as error:
         raise ConfigError([f"{model_py}:{error.lineno or '?'}: SyntaxError: {error.msg}"]) from None
     except Exception as error:
         raise ConfigError([f"{_frame_in(error, model_py)}: {type(error).__name__}: {error}"]) from None
+    finally:
+        sys.dont_write_bytecode = writes
     return module
 
 
