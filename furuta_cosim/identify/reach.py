@@ -63,16 +63,16 @@ import numpy as np
 
 from furuta_cosim.identify.experiment import Experiment, Free
 
-ANGLES = ("theta0", "theta1")
+# the start rates a balancing log's smoother estimates (identify's closed loop: the Furuta's)
 RATES = ("dtheta0", "dtheta1")
 Z95 = 1.959963984540054
 
 
 def counted_angles(experiment: Experiment) -> list[tuple[str, float, float]]:
-    """(state, value, quantum) of each start angle the experiment takes from a counted log
-    (``start: data`` on an output with an encoder ``quantum``)."""
+    """(state, value, quantum) of each start state the experiment takes from a counted log
+    (``start: data`` on an output with a sensor ``quantum``: an encoder's angle or position)."""
     found = []
-    for angle in ANGLES:
+    for angle in experiment.outputs:
         measured = experiment.outputs.get(angle)
         value = experiment.start.get(angle)
         if measured is None or not measured.quantum or value is None or isinstance(value, Free):
